@@ -1,0 +1,10 @@
+"""convodrive: conversation audio to embodied motion, sent 30 times a second to any body.
+
+The canonical motion types (``convodrive.motion``) are the contract every part speaks; see
+DESIGN.md in the project for which part may import which.
+"""
+
+__version__ = "0.1.0"
+
+FPS = 30
+"""The canonical motion rate. Every frame, clip, and backend speaks 30 frames per second."""

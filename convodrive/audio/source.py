@@ -1,0 +1,238 @@
+"""Dyadic audio input: any file soundfile reads, resampled to the analysis rate, read in chunks.
+
+Channel 0 is self, channel 1 the partner; a mono file means the partner is silent; a file with
+more channels needs an explicit choice. Files are read block by block and resampled with a
+polyphase filter that carries its context across blocks, so a two-hour file runs in constant
+memory and the chunks join seamlessly (they equal resampling the whole file at once).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from fractions import Fraction
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+import soundfile as sf
+from scipy.signal import resample_poly
+
+from convodrive import FPS
+from convodrive.errors import InputFileError
+
+ANALYSIS_RATE = 16_000
+"""Every generator sees audio at 16 kHz: enough for speech, and what pocketsphinx expects."""
+CHUNK_SAMPLES = 1_600
+"""100 ms chunks: exactly 3 motion frames at 30 fps."""
+SUPPORTED_FORMATS = {"WAV", "WAVEX", "RF64", "W64", "FLAC", "OGG", "AIFF"}
+_BLOCK_SECONDS = 2.0
+
+
+@dataclasses.dataclass(frozen=True)
+class ChannelMap:
+    """Which file channels are self and the partner; ``other`` None means a silent partner."""
+
+    self_channel: int = 0
+    other_channel: int | None = 1
+
+    @classmethod
+    def parse(cls, text: str) -> "ChannelMap":
+        """Parse the CLI form ``SELF,OTHER`` (``OTHER`` may be ``-`` for a silent partner)."""
+        parts = [p.strip() for p in text.split(",")]
+        try:
+            if len(parts) == 1:
+                return cls(int(parts[0]), None)
+            if len(parts) == 2:
+                return cls(int(parts[0]), None if parts[1] in ("-", "") else int(parts[1]))
+        except ValueError:
+            pass
+        raise ValueError(f"--channels expects SELF,OTHER channel numbers such as 0,1, got {text!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class AudioChunk:
+    """A stretch of both voices at ``ANALYSIS_RATE``. ``start`` counts samples from the file's start."""
+
+    start: int
+    self_voice: np.ndarray
+    other_voice: np.ndarray
+    final: bool = False
+
+    @property
+    def time(self) -> float:
+        return self.start / ANALYSIS_RATE
+
+    def __len__(self) -> int:
+        return len(self.self_voice)
+
+
+@dataclasses.dataclass(frozen=True)
+class DyadicAudio:
+    """Both voices of a conversation held in memory at ``ANALYSIS_RATE`` (offline use, tests)."""
+
+    self_voice: np.ndarray
+    other_voice: np.ndarray
+    source: str = ""
+
+    @property
+    def duration(self) -> float:
+        return len(self.self_voice) / ANALYSIS_RATE
+
+    @property
+    def num_frames(self) -> int:
+        return motion_frames_for(self.duration)
+
+    def chunks(self, chunk_samples: int = CHUNK_SAMPLES) -> Iterator[AudioChunk]:
+        n = len(self.self_voice)
+        for start in range(0, max(n, 1), chunk_samples):
+            stop = min(start + chunk_samples, n)
+            yield AudioChunk(start, self.self_voice[start:stop], self.other_voice[start:stop], final=stop >= n)
+
+
+def motion_frames_for(duration: float) -> int:
+    """The number of 30 fps frames that cover ``duration`` seconds of audio."""
+    return max(1, int(round(duration * FPS)))
+
+
+@dataclasses.dataclass(frozen=True)
+class AudioInfo:
+    path: Path
+    sample_rate: int
+    channels: int
+    frames: int
+    format: str
+    subtype: str
+
+    @property
+    def duration(self) -> float:
+        return self.frames / self.sample_rate
+
+    @property
+    def num_motion_frames(self) -> int:
+        return motion_frames_for(self.duration)
+
+
+class AudioSource:
+    """An audio file opened for dyadic, chunked reading. Opening validates the whole file."""
+
+    def __init__(self, path: str | Path, channel_map: ChannelMap | None = None) -> None:
+        self.path = Path(path)
+        self.info = probe_audio(self.path)
+        self.channel_map = _resolve_channels(self.info, channel_map)
+        if self.info.subtype.startswith(("FLOAT", "DOUBLE")) or self.info.format == "OGG":
+            self._check_finite()
+
+    def _check_finite(self) -> None:
+        with sf.SoundFile(self.path) as fh:
+            for block in fh.blocks(blocksize=int(_BLOCK_SECONDS * fh.samplerate), dtype="float32", always_2d=True):
+                if not np.all(np.isfinite(block)):
+                    raise InputFileError(self.path, "audio holds NaN or infinite samples")
+
+    @property
+    def duration(self) -> float:
+        return self.info.duration
+
+    def chunks(self, chunk_samples: int = CHUNK_SAMPLES) -> Iterator[AudioChunk]:
+        """Yield chunks of ``chunk_samples`` at ``ANALYSIS_RATE``; the last may be shorter."""
+        pending_self = np.zeros(0, np.float32)
+        pending_other = np.zeros(0, np.float32)
+        start = 0
+        for self_block, other_block, last in self._resampled_blocks():
+            pending_self = np.concatenate([pending_self, self_block])
+            pending_other = np.concatenate([pending_other, other_block])
+            while len(pending_self) >= chunk_samples and not (last and len(pending_self) == chunk_samples):
+                yield AudioChunk(start, pending_self[:chunk_samples], pending_other[:chunk_samples])
+                pending_self, pending_other = pending_self[chunk_samples:], pending_other[chunk_samples:]
+                start += chunk_samples
+            if last:
+                yield AudioChunk(start, pending_self, pending_other, final=True)
+
+    def read_all(self) -> DyadicAudio:
+        """The whole file in memory at ``ANALYSIS_RATE``; offline tools and tests use this."""
+        parts = list(self.chunks(chunk_samples=ANALYSIS_RATE * 10))
+        return DyadicAudio(
+            np.concatenate([c.self_voice for c in parts]).astype(np.float32),
+            np.concatenate([c.other_voice for c in parts]).astype(np.float32),
+            source=str(self.path),
+        )
+
+    def _resampled_blocks(self) -> Iterator[tuple[np.ndarray, np.ndarray, bool]]:
+        """Resample block by block with ``ctx`` native samples of context on each side.
+
+        Both the block length and the context are multiples of ``down``, so each block maps to a
+        whole number of output samples and the context trims off exactly.
+        """
+        ratio = Fraction(ANALYSIS_RATE, self.info.sample_rate)
+        up, down = ratio.numerator, ratio.denominator
+        ctx = down * math.ceil((10 * max(up, down) / up + 4) / down) if ratio != 1 else 0
+        block = down * max(1, int(_BLOCK_SECONDS * self.info.sample_rate) // down)
+        cols = [self.channel_map.self_channel] + ([self.channel_map.other_channel] if self.channel_map.other_channel is not None else [])
+        total = self.info.frames
+        with sf.SoundFile(self.path) as fh:
+            history = np.zeros((ctx, len(cols)), np.float32)
+            lookahead = _read_cols(fh, block + ctx, cols)
+            pos = 0
+            while pos < total:
+                current_len = min(block, total - pos)
+                more = _read_cols(fh, block, cols) if pos + block < total else np.zeros((0, len(cols)), np.float32)
+                ahead = np.concatenate([lookahead, more])
+                window = np.concatenate([history, ahead[: current_len + ctx]])
+                if len(window) < 2 * ctx + current_len:
+                    window = np.concatenate([window, np.zeros((2 * ctx + current_len - len(window), len(cols)), np.float32)])
+                if ratio == 1:
+                    out = window
+                else:
+                    out = resample_poly(window, up, down, axis=0).astype(np.float32)
+                first = ctx * up // down
+                count = current_len * up // down if pos + current_len < total else math.ceil(current_len * up / down)
+                out = out[first : first + count]
+                pos += current_len
+                last = pos >= total
+                yield out[:, 0], (out[:, 1] if out.shape[1] > 1 else np.zeros(len(out), np.float32)), last
+                history = window[current_len : current_len + ctx] if ctx else history
+                lookahead = ahead[current_len:]
+
+
+def _read_cols(fh: sf.SoundFile, n: int, cols: list[int]) -> np.ndarray:
+    data = fh.read(n, dtype="float32", always_2d=True)
+    return np.ascontiguousarray(data[:, cols])
+
+
+def probe_audio(path: str | Path) -> AudioInfo:
+    """Check that ``path`` is a readable, non-empty audio file of a supported format."""
+    path = Path(path)
+    if not path.exists():
+        raise InputFileError(path, "no such file")
+    if path.is_dir():
+        raise InputFileError(path, "is a folder, not an audio file")
+    if path.stat().st_size == 0:
+        raise InputFileError(path, "file is empty")
+    try:
+        info = sf.info(str(path))
+    except (sf.LibsndfileError, RuntimeError, TypeError) as exc:
+        detail = str(exc).split(":")[-1].strip() or "unreadable"
+        raise InputFileError(path, f"not a readable audio file ({detail})") from None
+    if info.format not in SUPPORTED_FORMATS:
+        raise InputFileError(path, f"unsupported audio format {info.format} (convodrive reads WAV, FLAC and OGG)")
+    if info.frames <= 0:
+        raise InputFileError(path, "audio holds no samples")
+    if info.samplerate <= 0:
+        raise InputFileError(path, f"invalid sample rate {info.samplerate}")
+    return AudioInfo(path, int(info.samplerate), int(info.channels), int(info.frames), info.format, info.subtype)
+
+
+def _resolve_channels(info: AudioInfo, channel_map: ChannelMap | None) -> ChannelMap:
+    if channel_map is None:
+        if info.channels == 1:
+            return ChannelMap(0, None)
+        if info.channels == 2:
+            return ChannelMap(0, 1)
+        raise InputFileError(
+            info.path,
+            f"has {info.channels} channels; choose self and partner with --channels SELF,OTHER (e.g. --channels 0,1)",
+        )
+    for ch in (channel_map.self_channel, channel_map.other_channel):
+        if ch is not None and not 0 <= ch < info.channels:
+            raise InputFileError(info.path, f"has no channel {ch} (it has {info.channels}: 0 to {info.channels - 1})")
+    return channel_map

@@ -1,0 +1,21 @@
+"""User-facing errors.
+
+A ``UserError`` is a mistake the user can fix (a bad file, a bad option). The CLI prints its
+message as one line on stderr and exits with code 2; it never shows a traceback for one. The
+message must name the file or option and the problem.
+"""
+
+from __future__ import annotations
+
+
+class UserError(Exception):
+    """A problem with the user's input, reported as one line, never as a traceback."""
+
+
+class InputFileError(UserError):
+    """A file given by the user cannot be used. The message starts with the file's path."""
+
+    def __init__(self, path: object, problem: str) -> None:
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{path}: {problem}")

@@ -1,0 +1,1 @@
+"""Generator plugins: conversation audio to canonical motion."""

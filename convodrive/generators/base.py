@@ -1,0 +1,48 @@
+"""The generator plugin contract (DESIGN, "Plugins").
+
+A generator turns dyadic audio chunks into canonical motion frames at 30 fps, streaming, with a
+declared look-ahead: frame k may depend on audio up to (k + lookahead_frames + 1) / 30 seconds.
+The same seed must give the same frames; ``stream`` is called once per take with that take's seed.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import Any, ClassVar, Iterable, Iterator
+
+from convodrive.audio.source import AudioChunk, DyadicAudio
+from convodrive.motion.clip import MotionClip, MotionFrame
+
+
+class Generator(abc.ABC):
+    name: ClassVar[str] = ""
+    description: ClassVar[str] = ""
+
+    def __init__(self, options: dict[str, Any] | None = None) -> None:
+        self.options: dict[str, Any] = dict(options or {})
+
+    @property
+    def lookahead_frames(self) -> int:
+        """How many frames of future audio a frame needs; the streaming latency."""
+        return 0
+
+    @abc.abstractmethod
+    def stream(self, chunks: Iterable[AudioChunk], seed: int = 0) -> Iterator[MotionFrame]:
+        """Yield frames 0, 1, 2, ... as the chunks that determine them arrive.
+
+        Frame k has ``time == k / 30``. The stream yields one frame per 1/30 s of audio (see
+        ``motion_frames_for``) and then ends.
+        """
+
+    def generate(self, audio: DyadicAudio, seed: int = 0, num_samples: int = 1) -> list[MotionClip]:
+        """Offline: ``num_samples`` takes of the whole audio, take i seeded with ``take_seed(seed, i)``."""
+        clips = []
+        for i in range(num_samples):
+            frames = list(self.stream(audio.chunks(), seed=take_seed(seed, i)))
+            clips.append(MotionClip.from_frames(frames, metadata={"generator": self.name, "seed": take_seed(seed, i)}))
+        return clips
+
+
+def take_seed(seed: int, take: int) -> int:
+    """Seed of take ``take`` of a run seeded ``seed``: take 0 uses the run's seed itself."""
+    return int(seed) + 7919 * int(take)

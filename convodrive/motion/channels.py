@@ -1,0 +1,45 @@
+"""Face and conversation-state channels of the canonical motion."""
+
+from __future__ import annotations
+
+import enum
+
+ARKIT_NAMES: tuple[str, ...] = (
+    "eyeBlinkLeft", "eyeLookDownLeft", "eyeLookInLeft", "eyeLookOutLeft", "eyeLookUpLeft",
+    "eyeSquintLeft", "eyeWideLeft",
+    "eyeBlinkRight", "eyeLookDownRight", "eyeLookInRight", "eyeLookOutRight", "eyeLookUpRight",
+    "eyeSquintRight", "eyeWideRight",
+    "jawForward", "jawLeft", "jawRight", "jawOpen",
+    "mouthClose", "mouthFunnel", "mouthPucker", "mouthLeft", "mouthRight", "mouthSmileLeft",
+    "mouthSmileRight", "mouthFrownLeft", "mouthFrownRight", "mouthDimpleLeft", "mouthDimpleRight",
+    "mouthStretchLeft", "mouthStretchRight", "mouthRollLower", "mouthRollUpper", "mouthShrugLower",
+    "mouthShrugUpper", "mouthPressLeft", "mouthPressRight", "mouthLowerDownLeft",
+    "mouthLowerDownRight", "mouthUpperUpLeft", "mouthUpperUpRight",
+    "browDownLeft", "browDownRight", "browInnerUp", "browOuterUpLeft", "browOuterUpRight",
+    "cheekPuff", "cheekSquintLeft", "cheekSquintRight", "noseSneerLeft", "noseSneerRight",
+    "tongueOut",
+)
+NUM_BLENDSHAPES = len(ARKIT_NAMES)
+BLENDSHAPE_INDEX: dict[str, int] = {name: i for i, name in enumerate(ARKIT_NAMES)}
+
+VAD_NAMES: tuple[str, str] = ("self", "other")
+"""Columns of a clip's voice-activity array: self (channel 0) and the partner (channel 1)."""
+
+
+class ConversationState(enum.IntEnum):
+    """Who is talking in a frame, from self's point of view."""
+
+    SILENCE = 0
+    SPEAKING = 1
+    LISTENING = 2
+    OVERLAP = 3
+
+    @classmethod
+    def from_activity(cls, self_active: bool, other_active: bool) -> "ConversationState":
+        if self_active and other_active:
+            return cls.OVERLAP
+        if self_active:
+            return cls.SPEAKING
+        if other_active:
+            return cls.LISTENING
+        return cls.SILENCE
