@@ -1,0 +1,432 @@
+"""A stateful Dynamixel Protocol 2.0 bus on a pseudo-terminal, for tests and for users without a robot.
+
+Each emulated servo holds its whole control table: a write changes later reads, EEPROM writes
+need torque off, Goal_Position outside the position limits is refused, and Present_Position slews
+toward Goal_Position at the profile velocity (or the velocity limit when the profile is 0) while
+torque is on. Replies are delayed by their time on the wire at the emulated baud rate.
+
+Faults are injected on demand, through the API or on the command line (``parse_fault``): dropped
+or CRC-corrupted replies, hardware-error bits (which switch torque off as the Shutdown register
+says, like a real servo), a servo that vanishes and comes back, a port that disappears.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import random
+import threading
+import time
+from typing import Callable, Iterable
+
+from convodrive.backends import dynamixel_packet as dp
+from convodrive.backends.dynamixel_table import Model, decode, encode, model as lookup_model
+from convodrive.backends.pty_server import PtyServer
+from convodrive.errors import UserError
+
+Clock = Callable[[], float]
+
+
+class EmulatedServo:
+    """One servo: a control table in RAM plus a first-order position model."""
+
+    def __init__(self, servo_id: int, model: Model, clock: Clock) -> None:
+        self.id = servo_id
+        self.model = model
+        self.table = model.table
+        self.mem = bytearray(self.table.size)
+        self._clock = clock
+        self.alive = True
+        self._pending: tuple[int, bytes] | None = None  # REG_WRITE, applied by ACTION
+        self._present = 0.0
+        self._last = clock()
+        self.factory_reset()
+
+    def factory_reset(self) -> None:
+        self.mem[:] = bytes(len(self.mem))
+        self._set("Model_Number", self.model.number)
+        self._set("Firmware_Version", self.model.firmware)
+        self._set("ID", self.id)
+        for name, value in self.table.defaults.items():
+            self._set(name, value)
+        self._present = float(self.get("Present_Position"))
+
+    def reboot(self) -> None:
+        """RAM back to defaults, EEPROM kept, errors cleared (what REBOOT does)."""
+        self.update()
+        self._set("Torque_Enable", 0)
+        self._set("Hardware_Error_Status", 0)
+        self._set("Goal_Position", int(round(self._present)))
+
+    # ------------------------------------------------------------- registers
+    def get(self, name: str) -> int:
+        reg = self.table.reg(name)
+        return decode(self.mem[reg.address: reg.address + reg.size], reg)
+
+    def _set(self, name: str, value: int) -> None:
+        reg = self.table.reg(name)
+        self.mem[reg.address: reg.address + reg.size] = bytes(encode(value, reg))
+
+    @property
+    def torque(self) -> bool:
+        return bool(self.get("Torque_Enable"))
+
+    @property
+    def hardware_error(self) -> int:
+        return self.get("Hardware_Error_Status")
+
+    @property
+    def present(self) -> float:
+        self.update()
+        return self._present
+
+    def read(self, address: int, length: int) -> tuple[int, bytes]:
+        if address + length > len(self.mem) or length == 0:
+            return dp.ERR_DATA_RANGE, b""
+        self.update()
+        return 0, bytes(self.mem[address: address + length])
+
+    def write(self, address: int, data: bytes) -> int:
+        """Apply a write and return the status error number (0 = accepted)."""
+        if address + len(data) > len(self.mem) or not data:
+            return dp.ERR_DATA_RANGE
+        touched = [(n, r) for n, r in self.table.registers.items()
+                   if r.address < address + len(data) and address < r.address + r.size]
+        for name, reg in touched:
+            if not reg.writable:
+                return dp.ERR_ACCESS
+            if reg.eeprom and self.torque:
+                return dp.ERR_ACCESS
+        goal = self.table.reg("Goal_Position")
+        if goal.address >= address and goal.address + goal.size <= address + len(data):
+            value = decode(data[goal.address - address:], goal)
+            low, high = self._position_limits()
+            if not low <= value <= high:
+                return dp.ERR_DATA_LIMIT
+        self.update()
+        self.mem[address: address + len(data)] = data
+        return 0
+
+    def _position_limits(self) -> tuple[int, int]:
+        if self.table.has("Min_Position_Limit"):
+            return self.get("Min_Position_Limit"), self.get("Max_Position_Limit")
+        return self.get("CW_Angle_Limit"), self.get("CCW_Angle_Limit")
+
+    def set_error(self, fault: str) -> None:
+        """Raise a hardware-error bit; torque drops if the Shutdown register lists it."""
+        bits = {name: bit for bit, name in self.table.error_bits.items()}
+        if fault not in bits:
+            raise UserError(f"{self.model.name} has no hardware error {fault!r} (known: {', '.join(bits)})")
+        self._set("Hardware_Error_Status", self.hardware_error | (1 << bits[fault]))
+        if self.get("Shutdown") & (1 << bits[fault]):
+            self.update()
+            self._set("Torque_Enable", 0)
+
+    def move_by_hand(self, tick: int) -> None:
+        """A person turns the horn (torque off): Present_Position follows."""
+        self._present = float(tick)
+        self._set("Present_Position", tick)
+
+    def update(self) -> None:
+        now = self._clock()
+        dt, self._last = max(0.0, now - self._last), now
+        if self.torque:
+            goal = self.get("Goal_Position")
+            velocity = self.get("Profile_Velocity") if self.table.has("Profile_Velocity") else self.get("Moving_Speed")
+            if velocity == 0:
+                velocity = self.get("Velocity_Limit") if self.table.has("Velocity_Limit") else 1023
+            ticks_per_s = velocity * self.table.velocity_unit_rpm / 60.0 * self.table.resolution
+            step = ticks_per_s * dt
+            delta = goal - self._present
+            self._present = goal if abs(delta) <= step else self._present + step * (1 if delta > 0 else -1)
+            self._set("Moving", int(abs(goal - self._present) > 0.5))
+        self._set("Present_Position", int(round(self._present)))
+
+
+@dataclasses.dataclass
+class GoalWrite:
+    time: float
+    servo_id: int
+    tick: int
+
+
+class DynamixelEmulator:
+    """Servos on one emulated bus. A context manager; ``port`` is the path to open."""
+
+    def __init__(self, ids: Iterable[int] = range(1, 8), model: str = "xl330", *, baudrate: int = 1_000_000,
+                 link: str | None = None, clock: Clock = time.monotonic, seed: int = 0) -> None:
+        spec = lookup_model(model)
+        self.clock = clock
+        self.baudrate = baudrate
+        self.servos: dict[int, EmulatedServo] = {i: EmulatedServo(i, spec, clock) for i in ids}
+        self.goal_log: list[GoalWrite] = []
+        self.counters = {"packets": 0, "replies": 0, "dropped": 0, "corrupted": 0, "crc_errors_in": 0, "refused_goals": 0}
+        self._lock = threading.RLock()
+        self._buffer = bytearray()
+        self._rng = random.Random(seed)
+        self._drop: dict[int | None, int] = {}
+        self._corrupt: dict[int | None, int] = {}
+        self.drop_rate = 0.0
+        self.corrupt_rate = 0.0
+        self._server = PtyServer(self._on_bytes, link=link, name="dynamixel-emulator")
+
+    # ------------------------------------------------------------- lifecycle
+    @property
+    def port(self) -> str:
+        return self._server.port
+
+    def start(self) -> "DynamixelEmulator":
+        self._server.start()
+        return self
+
+    def stop(self) -> None:
+        self._server.stop()
+
+    def __enter__(self) -> "DynamixelEmulator":
+        return self if self._server.connected else self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def servo(self, servo_id: int) -> EmulatedServo:
+        return self.servos[servo_id]
+
+    def goals(self, servo_id: int) -> list[GoalWrite]:
+        with self._lock:
+            return [g for g in self.goal_log if g.servo_id == servo_id]
+
+    # ------------------------------------------------------------- faults
+    def drop_replies(self, count: int = 1, servo_id: int | None = None) -> None:
+        """Swallow the next ``count`` replies (of one servo, or of any)."""
+        with self._lock:
+            self._drop[servo_id] = self._drop.get(servo_id, 0) + count
+
+    def corrupt_replies(self, count: int = 1, servo_id: int | None = None) -> None:
+        with self._lock:
+            self._corrupt[servo_id] = self._corrupt.get(servo_id, 0) + count
+
+    def hardware_error(self, servo_id: int, fault: str) -> None:
+        with self._lock:
+            self.servos[servo_id].set_error(fault)
+
+    def vanish(self, servo_id: int, seconds: float | None = None) -> None:
+        """The servo stops answering (cable pulled); back after ``seconds`` if given."""
+        self.servos[servo_id].alive = False
+        if seconds is not None:
+            self._server.after(seconds, lambda: self.reappear(servo_id))
+
+    def reappear(self, servo_id: int) -> None:
+        servo = self.servos[servo_id]
+        with self._lock:
+            servo.alive = True
+            servo.reboot()  # power came back: RAM state is lost, torque off
+
+    def unplug(self, seconds: float | None = None) -> None:
+        """The USB adapter disappears; with ``seconds`` it comes back under the same link."""
+        self._server.unplug(seconds)
+
+    def replug(self) -> None:
+        self._server.replug()
+
+    def schedule(self, fault: "Fault") -> None:
+        self._server.after(fault.at, lambda: fault.apply(self))
+
+    # ------------------------------------------------------------- protocol
+    def _on_bytes(self, data: bytes) -> None:
+        arrived = time.perf_counter()
+        with self._lock:
+            self._buffer.extend(data)
+            replies: list[tuple[int, bytes]] = []
+            request_bytes = 0
+            while (packet := dp.parse(self._buffer)) is not None:
+                self.counters["packets"] += 1
+                request_bytes += 10 + len(packet.params)
+                replies.extend(self._handle(packet))
+            out = [self._mangle(sid, raw) for sid, raw in replies]
+        wire = request_bytes
+        for raw in out:
+            if raw is None:
+                continue
+            wire += len(raw)
+            self._wait_wire(arrived, wire)
+            self._server.send(raw)
+            self.counters["replies"] += 1
+
+    def _wait_wire(self, since: float, nbytes: int) -> None:
+        """Hold a reply until it would have finished on a real bus (10 bits per byte)."""
+        if not self.baudrate:
+            return
+        due = since + nbytes * 10.0 / self.baudrate
+        delay = due - time.perf_counter()
+        if delay > 0:
+            time.sleep(delay)
+
+    def _mangle(self, servo_id: int, raw: bytes) -> bytes | None:
+        for key in (servo_id, None):
+            if self._drop.get(key, 0) > 0:
+                self._drop[key] -= 1
+                self.counters["dropped"] += 1
+                return None
+        if self.drop_rate and self._rng.random() < self.drop_rate:
+            self.counters["dropped"] += 1
+            return None
+        corrupt = self.corrupt_rate and self._rng.random() < self.corrupt_rate
+        for key in (servo_id, None):
+            if not corrupt and self._corrupt.get(key, 0) > 0:
+                self._corrupt[key] -= 1
+                corrupt = True
+        if corrupt:
+            self.counters["corrupted"] += 1
+            return raw[:-2] + bytes([raw[-2] ^ 0x5A, raw[-1]])
+        return raw
+
+    def _status(self, servo: EmulatedServo, error: int, params: bytes = b"") -> tuple[int, bytes]:
+        if servo.hardware_error:
+            error |= dp.ERR_ALERT
+        return servo.id, dp.status(servo.id, error, params)
+
+    def _targets(self, servo_id: int) -> list[EmulatedServo]:
+        if servo_id == dp.BROADCAST_ID:
+            return [s for s in self.servos.values() if s.alive]
+        servo = self.servos.get(servo_id)
+        return [servo] if servo is not None and servo.alive else []
+
+    def _replies_allowed(self, servo: EmulatedServo, inst: int) -> bool:
+        level = servo.get("Status_Return_Level")
+        return inst == dp.PING or level >= 2 or (level == 1 and inst in (dp.READ, dp.SYNC_READ, dp.BULK_READ))
+
+    def _handle(self, p: dp.Packet) -> list[tuple[int, bytes]]:
+        targets = self._targets(p.servo_id)
+        unicast = p.servo_id != dp.BROADCAST_ID
+        if not p.crc_ok:
+            self.counters["crc_errors_in"] += 1
+            return [self._status(s, dp.ERR_CRC) for s in targets if unicast]
+        params = p.params
+        if p.inst == dp.PING:
+            return [self._status(s, 0, bytes(encode(s.model.number, s.table.reg("Model_Number")))
+                                 + bytes([s.model.firmware])) for s in targets]
+        if p.inst in (dp.READ, dp.WRITE, dp.REG_WRITE, dp.ACTION, dp.REBOOT, dp.FACTORY_RESET, dp.CLEAR):
+            return [r for s in targets if (r := self._unicast(s, p.inst, params)) is not None and unicast
+                    and self._replies_allowed(s, p.inst)]
+        if p.inst == dp.SYNC_WRITE and len(params) >= 4:
+            address, length = _u16(params, 0), _u16(params, 2)
+            for k in range(4, len(params) - length, length + 1):
+                self._write_logged(params[k], address, params[k + 1: k + 1 + length])
+            return []
+        if p.inst == dp.BULK_WRITE:
+            k = 0
+            while k + 5 <= len(params):
+                sid, address, length = params[k], _u16(params, k + 1), _u16(params, k + 3)
+                self._write_logged(sid, address, params[k + 5: k + 5 + length])
+                k += 5 + length
+            return []
+        if p.inst == dp.SYNC_READ and len(params) >= 4:
+            address, length = _u16(params, 0), _u16(params, 2)
+            return [self._read_reply(sid, address, length) for sid in params[4:] if self._answers(sid)]
+        if p.inst == dp.BULK_READ:
+            return [self._read_reply(params[k], _u16(params, k + 1), _u16(params, k + 3))
+                    for k in range(0, len(params) - 4, 5) if self._answers(params[k])]
+        return [self._status(s, dp.ERR_INSTRUCTION) for s in targets if unicast]
+
+    def _answers(self, servo_id: int) -> bool:
+        servo = self.servos.get(servo_id)
+        return servo is not None and servo.alive
+
+    def _read_reply(self, servo_id: int, address: int, length: int) -> tuple[int, bytes]:
+        servo = self.servos[servo_id]
+        error, data = servo.read(address, length)
+        return self._status(servo, error, data)
+
+    def _unicast(self, s: EmulatedServo, inst: int, params: bytes) -> tuple[int, bytes] | None:
+        if inst == dp.READ:
+            if len(params) != 4:
+                return self._status(s, dp.ERR_DATA_LENGTH)
+            return self._read_reply(s.id, _u16(params, 0), _u16(params, 2))
+        if inst == dp.WRITE:
+            if len(params) < 3:
+                return self._status(s, dp.ERR_DATA_LENGTH)
+            return self._status(s, self._write_logged(s.id, _u16(params, 0), params[2:]))
+        if inst == dp.REG_WRITE:
+            s._pending = (_u16(params, 0), bytes(params[2:]))
+            return self._status(s, 0)
+        if inst == dp.ACTION:
+            if s._pending:
+                self._write_logged(s.id, *s._pending)
+                s._pending = None
+            return self._status(s, 0)
+        if inst == dp.REBOOT:
+            s.reboot()
+            return self._status(s, 0)
+        if inst == dp.FACTORY_RESET:
+            s.factory_reset()
+            return self._status(s, 0)
+        return self._status(s, 0)  # CLEAR: nothing to clear in position mode
+
+    def _write_logged(self, servo_id: int, address: int, data: bytes) -> int:
+        servo = self.servos.get(servo_id)
+        if servo is None or not servo.alive:
+            return dp.ERR_RESULT_FAIL
+        error = servo.write(address, bytes(data))
+        goal = servo.table.reg("Goal_Position")
+        if goal.address >= address and goal.address + goal.size <= address + len(data):
+            if error:
+                self.counters["refused_goals"] += 1
+            else:
+                self.goal_log.append(GoalWrite(self.clock(), servo_id, servo.get("Goal_Position")))
+        return error
+
+
+def _u16(data: bytes, at: int) -> int:
+    return data[at] | (data[at + 1] << 8)
+
+
+# ----------------------------------------------------------------- fault schedules (CLI)
+FAULT_KINDS = ("drop", "corrupt", "overload", "overheating", "input_voltage", "vanish", "port")
+
+
+@dataclasses.dataclass(frozen=True)
+class Fault:
+    """``KIND[:ARG][@AT][+FOR]``: e.g. ``drop:0.05`` (5 % of replies), ``overload:3@2``
+    (servo 3 overloads 2 s in), ``vanish:4@1+2`` (servo 4 gone from 1 s to 3 s), ``port@5+1``."""
+
+    kind: str
+    arg: float | None = None
+    at: float = 0.0
+    duration: float | None = None
+
+    def apply(self, emu: "DynamixelEmulator") -> None:
+        if self.kind == "drop":
+            emu.drop_rate = self.arg if self.arg is not None else 0.05
+        elif self.kind == "corrupt":
+            emu.corrupt_rate = self.arg if self.arg is not None else 0.05
+        elif self.kind == "vanish":
+            emu.vanish(int(self.arg or 1), self.duration)
+        elif self.kind == "port":
+            emu.unplug(self.duration)
+        else:
+            emu.hardware_error(int(self.arg or 1), self.kind)
+
+
+def parse_fault(text: str) -> Fault:
+    try:
+        rest, duration = (text.split("+", 1) + [None])[:2] if "+" in text else (text, None)
+        rest, at = rest.split("@", 1) if "@" in rest else (rest, "0")
+        kind, arg = rest.split(":", 1) if ":" in rest else (rest, None)
+        fault = Fault(kind, float(arg) if arg is not None else None, float(at),
+                      float(duration) if duration is not None else None)
+    except ValueError:
+        raise UserError(f"--fault {text!r}: expected KIND[:ARG][@SECONDS][+SECONDS]") from None
+    if fault.kind not in FAULT_KINDS:
+        raise UserError(f"--fault {text!r}: unknown kind {fault.kind!r} (known: {', '.join(FAULT_KINDS)})")
+    return fault
+
+
+def start_emulated_head(ids: Iterable[int] = range(1, 8), model: str = "xl330", *, link: str | None = None,
+                        faults: Iterable[Fault] = (), baudrate: int = 1_000_000) -> DynamixelEmulator:
+    """An emulated servo head on a fresh pty, already serving. Use as a context manager:
+
+    ``with start_emulated_head() as head: options["port"] = head.port`` ... ``head.goal_log``.
+    """
+    emu = DynamixelEmulator(ids, model, baudrate=baudrate, link=link).start()
+    for fault in faults:
+        emu.schedule(fault)
+    return emu

@@ -1,0 +1,103 @@
+"""Headless OpenGL for pyrender: pick EGL or OSMesa before OpenGL is imported, and patch pyrender.
+
+PyOpenGL binds to one platform (GLX, EGL, OSMesa) the first time ``OpenGL`` is imported, read
+from ``PYOPENGL_PLATFORM``; it cannot switch afterwards. So the choice is made once per process,
+by rendering a tiny scene in a child process for each candidate (EGL first: it is faster and can
+use a GPU; OSMesa is pure software and always works where libOSMesa is installed). A user who
+sets ``PYOPENGL_PLATFORM`` gets exactly that platform, checked the same way.
+
+pyrender 0.1.45 pins PyOpenGL==3.1.0, whose EGL/OSMesa bindings MuJoCo cannot use. We install
+pyrender with ``--no-deps`` next to PyOpenGL>=3.1.7; its offscreen path works there. It also uses
+``np.infty``, removed in NumPy 2.0, so ``import_pyrender`` restores that alias before importing it.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from types import ModuleType
+
+from convodrive.errors import UserError
+
+CANDIDATES: tuple[str, ...] = ("egl", "osmesa")
+
+_PROBE = """
+import numpy as np
+if not hasattr(np, "infty"):
+    np.infty = np.inf
+import pyrender
+r = pyrender.OffscreenRenderer(16, 16)
+s = pyrender.Scene(bg_color=[0.0, 1.0, 0.0, 1.0])
+s.add(pyrender.PerspectiveCamera(yfov=1.0))
+color, _ = r.render(s)
+r.delete()
+assert color.shape == (16, 16, 3) and color[8, 8, 1] > 200, "offscreen render returned no image"
+"""
+
+_chosen: str | None = None
+
+
+def _probe(platform: str, timeout: float = 60.0) -> str | None:
+    """Render 16x16 in a child process under ``platform``; None when it works, else the reason."""
+    env = dict(os.environ, PYOPENGL_PLATFORM=platform)
+    try:
+        proc = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return "timed out"
+    if proc.returncode == 0:
+        return None
+    lines = [ln.strip() for ln in proc.stderr.strip().splitlines() if ln.strip()]
+    return lines[-1] if lines else f"exit code {proc.returncode}"
+
+
+def _platform_of_loaded_opengl() -> str | None:
+    """The platform an already-imported PyOpenGL is bound to (e.g. by MuJoCo's EGL context)."""
+    if "OpenGL.platform" not in sys.modules:
+        return None
+    name = type(sys.modules["OpenGL.platform"].PLATFORM).__name__.lower()
+    for platform in ("egl", "osmesa", "glx"):
+        if platform in name:
+            return platform
+    return name
+
+
+def select_platform() -> str:
+    """Choose and set ``PYOPENGL_PLATFORM`` for this process; raise one ``UserError`` line if none works."""
+    global _chosen
+    if _chosen is not None:
+        return _chosen
+    loaded = _platform_of_loaded_opengl()
+    if loaded is not None:
+        if loaded not in CANDIDATES:
+            raise UserError(
+                f"render: OpenGL was already loaded for '{loaded}', which cannot render headless; "
+                "set PYOPENGL_PLATFORM=egl or osmesa before starting convodrive"
+            )
+        _chosen = loaded
+        os.environ["PYOPENGL_PLATFORM"] = loaded
+        return loaded
+    requested = os.environ.get("PYOPENGL_PLATFORM", "").strip().lower()
+    candidates = (requested,) if requested else CANDIDATES
+    failures = []
+    for platform in candidates:
+        reason = _probe(platform)
+        if reason is None:
+            os.environ["PYOPENGL_PLATFORM"] = platform
+            _chosen = platform
+            return platform
+        failures.append(f"{platform}: {reason}")
+    hint = "install libegl1 + libgl1-mesa-dri (EGL) or libosmesa6 (OSMesa)"
+    raise UserError(f"render: no headless OpenGL works ({'; '.join(failures)}); {hint}")
+
+
+def import_pyrender() -> ModuleType:
+    """Select the platform, apply the NumPy 2 alias pyrender needs, and import pyrender."""
+    select_platform()
+    import numpy as np
+
+    if not hasattr(np, "infty"):  # pyrender.mesh.Mesh.bounds uses np.infty (removed in NumPy 2.0)
+        np.infty = np.inf  # type: ignore[attr-defined]
+    import pyrender
+
+    return pyrender

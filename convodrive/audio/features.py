@@ -1,0 +1,262 @@
+"""Streaming per-frame speech features of one voice: loudness, voice activity, F0, accents, syllables.
+
+Frame k of the 30 fps motion clock covers samples ``[edge(k), edge(k+1))`` with
+``edge(k) = floor(k * 1600 / 3)``. Three stages, each a pure function of the samples so far, so the
+output never depends on how the audio was cut into chunks:
+
+1. *raw* features of frame m (``raw_frames``): frame RMS, and F0 and spectral shape from a
+   ``WINDOW``-sample window centred on the frame; they need audio up to ``centre(m) + WINDOW/2``,
+   less than 1.5 frames past the frame's start.
+2. *tracked* features of frame f (``VoiceTracker``): voice activity with hysteresis, the smoothed
+   envelope, pitch accents, syllable nuclei and onsets, laughter-like bursts. Peaks are decided
+   with ``TRACK_LOOKAHEAD`` (2) raw frames of look-ahead, so frame f is final once raw frame f+2 is.
+3. Together: frame f's features need audio up to ``(f + 3.5) / 30`` s, within the 3 frames
+   (100 ms) of look-ahead the procedural generator declares.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from convodrive import FPS
+from convodrive.audio.source import ANALYSIS_RATE
+
+SAMPLES_PER_FRAME = ANALYSIS_RATE / FPS  # 533.33...
+WINDOW = 1024
+"""F0 and spectral window, samples: two periods of a 70 Hz voice."""
+SPECTRUM_WINDOW = 512
+TRACK_LOOKAHEAD = 2
+"""Raw frames past frame f that deciding frame f's peaks (accents, nuclei) may look at."""
+_F0_MIN, _F0_MAX = 70.0, 400.0
+_LAG_MIN, _LAG_MAX = int(ANALYSIS_RATE / _F0_MAX), int(math.ceil(ANALYSIS_RATE / _F0_MIN))
+_HISTORY = 48
+"""Raw frames of history the tracker keeps (laughter looks back 1 s)."""
+
+
+def frame_edge(k: np.ndarray | int) -> np.ndarray | int:
+    """First sample of frame k (exact integer arithmetic, so every chunking agrees)."""
+    return (np.asarray(k) * 1600) // 3 if isinstance(k, np.ndarray) else (k * 1600) // 3
+
+
+def frame_centre(k: np.ndarray | int) -> np.ndarray | int:
+    return ((np.asarray(k) * 2 + 1) * 800) // 3 if isinstance(k, np.ndarray) else ((2 * k + 1) * 800) // 3
+
+
+def samples_needed(num_raw_frames: int) -> int:
+    """Samples that must have arrived before raw frames ``0 .. num_raw_frames-1`` can be computed."""
+    if num_raw_frames <= 0:
+        return 0
+    last = num_raw_frames - 1
+    return max(frame_edge(last + 1), frame_centre(last) + WINDOW // 2)
+
+
+RAW_FIELDS = ("db", "f0", "periodicity", "centroid", "f1_frac", "f2_frac", "low_frac", "hiss_frac")
+
+
+def raw_frames(padded: np.ndarray, pad_start: int, first: int, count: int) -> dict[str, np.ndarray]:
+    """Raw features of frames ``first .. first+count-1``.
+
+    ``padded`` holds samples from absolute index ``pad_start`` (which may be negative: zeros before
+    the file's start) and must reach ``samples_needed(first + count)``. Vectorised over frames.
+    """
+    k = np.arange(first, first + count)
+    # Loudness: RMS over the frame's own samples.
+    starts, stops = frame_edge(k) - pad_start, frame_edge(k + 1) - pad_start
+    sq = np.concatenate([[0.0], np.cumsum(padded.astype(np.float64) ** 2)])
+    power = (sq[stops] - sq[starts]) / (stops - starts)
+    db = 10.0 * np.log10(power + 1e-10)
+
+    # F0: normalised autocorrelation over a window centred on the frame.
+    centres = frame_centre(k) - pad_start
+    views = sliding_window_view(padded, WINDOW)
+    win = views[centres - WINDOW // 2].astype(np.float64)
+    win = win - win.mean(axis=1, keepdims=True)
+    spec = np.fft.rfft(win, n=2 * WINDOW, axis=1)
+    acf = np.fft.irfft(spec.real**2 + spec.imag**2, axis=1)[:, : _LAG_MAX + 2]
+    csum = np.concatenate([np.zeros((count, 1)), np.cumsum(win**2, axis=1)], axis=1)
+    lags = np.arange(_LAG_MAX + 2)
+    e_head = csum[:, WINDOW - lags]
+    e_tail = csum[:, -1:] - csum[:, lags]
+    nac = acf / np.sqrt(e_head * e_tail + 1e-12)
+    band = nac[:, _LAG_MIN : _LAG_MAX + 1]
+    best = band.max(axis=1)
+    # The shortest lag close to the best avoids halving F0 (picking a multiple of the period).
+    lag = _LAG_MIN + np.argmax(band >= 0.92 * best[:, None], axis=1)
+    # Parabolic refinement around the chosen lag.
+    rows = np.arange(count)
+    y0, y1, y2 = nac[rows, lag - 1], nac[rows, lag], nac[rows, lag + 1]
+    denom = y0 - 2 * y1 + y2
+    shift = np.where(np.abs(denom) > 1e-9, 0.5 * (y0 - y2) / np.where(np.abs(denom) > 1e-9, denom, 1.0), 0.0)
+    f0 = ANALYSIS_RATE / (lag + np.clip(shift, -0.5, 0.5))
+
+    # Spectral shape from the central SPECTRUM_WINDOW samples: which mouth shape the sound suggests.
+    half = (WINDOW - SPECTRUM_WINDOW) // 2
+    mag = np.abs(np.fft.rfft(win[:, half : half + SPECTRUM_WINDOW] * np.hanning(SPECTRUM_WINDOW), axis=1)) ** 2
+    freqs = np.fft.rfftfreq(SPECTRUM_WINDOW, 1.0 / ANALYSIS_RATE)
+    total = mag[:, (freqs >= 80)].sum(axis=1) + 1e-12
+    speechband = mag[:, (freqs >= 200) & (freqs < 3000)].sum(axis=1) + 1e-12
+
+    def frac(lo: float, hi: float, ref: np.ndarray) -> np.ndarray:
+        return mag[:, (freqs >= lo) & (freqs < hi)].sum(axis=1) / ref
+
+    centroid = (mag * freqs).sum(axis=1) / (mag.sum(axis=1) + 1e-12)
+    return {
+        "db": db,
+        "f0": f0,
+        "periodicity": best,
+        "centroid": centroid,
+        "f1_frac": frac(550, 1100, speechband),
+        "f2_frac": frac(1600, 3000, speechband),
+        "low_frac": frac(200, 550, speechband),
+        "hiss_frac": frac(3500, 8000, total),
+    }
+
+
+@dataclasses.dataclass
+class VoiceParams:
+    """Thresholds of the voice tracker; dBFS of frame RMS."""
+
+    vad_on_db: float = -40.0
+    vad_off_db: float = -48.0
+    vad_hangover: int = 8
+    """Frames below ``vad_off_db`` before the voice counts as stopped (about 250 ms)."""
+    floor_db: float = -55.0
+    peak_db: float = -14.0
+    voicing: float = 0.55
+    accent_st: float = 1.5
+
+
+TRACK_FIELDS = (
+    "db", "env", "vad", "voiced", "f0", "pitch_st", "accent", "nucleus", "stress", "onset", "laugh",
+    "centroid", "f1_frac", "f2_frac", "low_frac", "hiss_frac",
+)
+
+
+class VoiceTracker:
+    """Stateful per-voice tracking over raw frames: the decisions that need history or look-ahead.
+
+    ``push(raw)`` appends raw frames and returns the tracked features of every frame that became
+    final (those with ``TRACK_LOOKAHEAD`` raw frames after them); ``flush`` finalises the rest at
+    the end of the audio, as if silence followed.
+    """
+
+    def __init__(self, params: VoiceParams | None = None) -> None:
+        self.p = params or VoiceParams()
+        self._raw = {name: np.zeros(0) for name in RAW_FIELDS}
+        self._offset = 0  # absolute index of self._raw[...][0]
+        self._next = 0  # next frame to finalise
+        self._vad = False
+        self._below = 0
+        self._baseline = float("nan")
+        self._since_accent = 99
+        self._since_nucleus = 99
+        self._nuclei: list[int] = []
+        self._laugh = 0.0
+        self._env_mean = 0.3
+
+    def push(self, raw: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        for name in RAW_FIELDS:
+            self._raw[name] = np.concatenate([self._raw[name], raw[name]])
+        end = self._offset + len(self._raw["db"]) - TRACK_LOOKAHEAD
+        return self._finalise(end)
+
+    def flush(self) -> dict[str, np.ndarray]:
+        silent = {name: np.zeros(TRACK_LOOKAHEAD) for name in RAW_FIELDS}
+        silent["db"] = np.full(TRACK_LOOKAHEAD, -100.0)
+        silent["f0"] = np.full(TRACK_LOOKAHEAD, 100.0)
+        end = self._offset + len(self._raw["db"])
+        for name in RAW_FIELDS:
+            self._raw[name] = np.concatenate([self._raw[name], silent[name]])
+        return self._finalise(end)
+
+    def _finalise(self, end: int) -> dict[str, np.ndarray]:
+        start = self._next
+        n = max(0, end - start)
+        out = {name: np.zeros(n) for name in TRACK_FIELDS}
+        if n == 0:
+            return out
+        p = self.p
+        r = self._raw
+        off = self._offset
+        db_all = r["db"]
+        # Loudness envelope in [0, 1], smoothed over three frames (one of look-ahead).
+        loud = np.clip((db_all - p.floor_db) / (p.peak_db - p.floor_db), 0.0, 1.0)
+        idx = np.arange(start, end) - off
+        prev = np.maximum(idx - 1, 0)
+        env = 0.25 * loud[prev] + 0.5 * loud[idx] + 0.25 * loud[idx + 1]
+        voiced_raw = (r["periodicity"] >= p.voicing) & (db_all > p.vad_off_db)
+        st_all = 12.0 * np.log2(np.maximum(r["f0"], 1.0) / 100.0)
+        for name in ("db", "f0", "centroid", "f1_frac", "f2_frac", "low_frac", "hiss_frac"):
+            out[name] = r[name][idx]
+        out["env"] = env
+        for j, i in enumerate(idx):
+            f = start + j
+            db = db_all[i]
+            # Voice activity with hysteresis: on after two loud frames, off after a hangover.
+            if self._vad:
+                self._below = self._below + 1 if db < p.vad_off_db else 0
+                if self._below > p.vad_hangover:
+                    self._vad = False
+            elif db >= p.vad_on_db and db_all[i + 1] >= p.vad_off_db:
+                self._vad = True
+                self._below = 0
+            out["vad"][j] = self._vad
+            voiced = bool(voiced_raw[i]) and self._vad
+            out["voiced"][j] = voiced
+            st = st_all[i]
+            if voiced:
+                self._baseline = st if math.isnan(self._baseline) else 0.97 * self._baseline + 0.03 * st
+            rel = st - self._baseline if voiced and not math.isnan(self._baseline) else 0.0
+            out["pitch_st"][j] = rel
+            self._since_accent += 1
+            self._since_nucleus += 1
+            lo, hi = max(i - 2, 0), i + TRACK_LOOKAHEAD + 1
+            # Pitch accent: a local F0 peak well above the speaker's running baseline, on a loud frame.
+            if (
+                voiced and rel > p.accent_st and env[j] > 0.35 and self._since_accent > 8
+                and st >= np.max(np.where(voiced_raw[lo:hi], st_all[lo:hi], -99.0))
+            ):
+                out["accent"][j] = min(1.0, rel / 6.0)
+                self._since_accent = 0
+            # Syllable nucleus: a local loudness peak after a dip.
+            e = loud[i]
+            dip = e - np.min(loud[max(i - 6, 0) : i + 1])
+            if (
+                self._vad and e > 0.3 and dip > 0.08 and self._since_nucleus > 3
+                and e >= np.max(loud[lo:hi])
+            ):
+                strength = min(1.0, 0.4 + dip)
+                out["nucleus"][j] = strength
+                self._since_nucleus = 0
+                self._nuclei.append(f)
+                self._env_mean = 0.9 * self._env_mean + 0.1 * e
+                accented = np.any(out["accent"][max(j - 3, 0) : j + 1] > 0)
+                if accented or e > self._env_mean + 0.04:
+                    out["stress"][j] = min(1.0, strength + (0.3 if accented else 0.0))
+            if self._vad and loud[i] - loud[max(i - 2, 0)] > 0.25:
+                out["onset"][j] = min(1.0, loud[i] - loud[max(i - 2, 0)])
+            out["laugh"][j] = self._laughter(f, rel)
+        self._next = end
+        # Keep only the history later frames still look at.
+        keep_from = max(0, end - off - _HISTORY)
+        if keep_from:
+            for name in RAW_FIELDS:
+                r[name] = r[name][keep_from:]
+            self._offset += keep_from
+        self._nuclei = [t for t in self._nuclei if t > end - 40]
+        return out
+
+    def _laughter(self, f: int, rel_pitch: float) -> float:
+        """Laughter-like burst: four or more evenly spaced loud nuclei at 3.5 to 7 per second."""
+        recent = [t for t in self._nuclei if f - t <= 32]
+        score = 0.0
+        if len(recent) >= 4:
+            gaps = np.diff(recent)
+            if 4 <= gaps.mean() <= 9 and gaps.std() <= 0.25 * gaps.mean():
+                score = 1.0 if rel_pitch > -1.0 else 0.6
+        self._laugh = max(score, self._laugh * 0.93)
+        return self._laugh

@@ -1,0 +1,137 @@
+"""Synthetic two-speaker dialogues from espeak-ng, for the bundled sample and for tests.
+
+A dialogue is a list of turns, each spoken by self (channel 0) or the partner (channel 1) in an
+espeak-ng voice at a rate and pitch; a turn starts at a given time, or a gap after the previous
+turn ends (a negative gap makes the two overlap). The result is a stereo 16-bit WAV, written
+atomically, and the measured start and end of each turn's speech, so tests know the ground truth.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+import subprocess
+import tempfile
+from fractions import Fraction
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import soundfile as sf
+from scipy.signal import resample_poly
+
+from convodrive.atomic import atomic_path
+from convodrive.errors import UserError
+
+SELF, PARTNER = 0, 1
+
+
+@dataclasses.dataclass(frozen=True)
+class Turn:
+    """One utterance. ``start`` in seconds, or None: ``gap`` seconds after the previous turn ends."""
+
+    speaker: int
+    text: str
+    voice: str = "en-us"
+    rate: int = 165
+    """Words per minute (espeak-ng ``-s``)."""
+    pitch: int = 50
+    """0..99 (espeak-ng ``-p``)."""
+    start: float | None = None
+    gap: float = 0.3
+    amplitude: float = 0.6
+    """Peak level of the turn, as a fraction of full scale."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TurnTiming:
+    speaker: int
+    text: str
+    voice: str
+    rate: int
+    start: float
+    end: float
+
+
+@dataclasses.dataclass(frozen=True)
+class DialogueInfo:
+    path: Path
+    sample_rate: int
+    duration: float
+    turns: tuple[TurnTiming, ...]
+
+    def to_json(self) -> dict:
+        return {
+            "audio": self.path.name,
+            "sample_rate": self.sample_rate,
+            "duration": round(self.duration, 3),
+            "channels": {"0": "self", "1": "partner"},
+            "turns": [
+                {"speaker": "self" if t.speaker == SELF else "partner", "channel": t.speaker, "start": round(t.start, 3),
+                 "end": round(t.end, 3), "text": t.text, "voice": t.voice, "rate": t.rate}
+                for t in self.turns
+            ],
+        }
+
+
+def speak(text: str, voice: str = "en-us", rate: int = 165, pitch: int = 50, sample_rate: int = 16000) -> np.ndarray:
+    """One utterance as float32 mono at ``sample_rate``, leading and trailing silence trimmed."""
+    exe = shutil.which("espeak-ng")
+    if exe is None:
+        raise UserError("espeak-ng is not installed; it is needed to synthesise speech (e.g. apt install espeak-ng)")
+    with tempfile.TemporaryDirectory() as tmp:
+        wav = Path(tmp) / "turn.wav"
+        result = subprocess.run(
+            [exe, "-v", voice, "-s", str(rate), "-p", str(pitch), "-w", str(wav), "--", text],
+            capture_output=True, text=True, timeout=60,
+        )
+        if result.returncode != 0 or not wav.exists():
+            raise UserError(f"espeak-ng failed for voice {voice!r}: {result.stderr.strip() or result.returncode}")
+        audio, rate_in = sf.read(wav, dtype="float32")
+    if audio.ndim > 1:
+        audio = audio.mean(axis=1)
+    if rate_in != sample_rate:
+        ratio = Fraction(sample_rate, rate_in)
+        audio = resample_poly(audio, ratio.numerator, ratio.denominator).astype(np.float32)
+    loud = np.flatnonzero(np.abs(audio) > 0.02 * max(float(np.abs(audio).max()), 1e-9))
+    return audio[loud[0] : loud[-1] + 1] if len(loud) else audio[:0]
+
+
+def synthesize_dialogue(
+    turns: Sequence[Turn],
+    path: str | Path,
+    sample_rate: int = 16000,
+    seed: int = 0,
+    noise_level: float = 1e-3,
+    lead_in: float = 0.5,
+    tail: float = 0.5,
+) -> DialogueInfo:
+    """Speak ``turns`` onto channel 0 (self) and 1 (partner) and write a stereo 16-bit WAV.
+
+    ``noise_level`` adds a faint seeded noise floor (RMS, full scale 1) so silence is not digital
+    zero, as in a real recording; 0 turns it off.
+    """
+    if not turns:
+        raise ValueError("a dialogue needs at least one turn")
+    clips, timings = [], []
+    cursor = lead_in
+    for turn in turns:
+        if turn.speaker not in (SELF, PARTNER):
+            raise ValueError(f"turn speaker must be 0 (self) or 1 (partner), got {turn.speaker}")
+        audio = speak(turn.text, turn.voice, turn.rate, turn.pitch, sample_rate)
+        audio = audio * (turn.amplitude / max(float(np.abs(audio).max()), 1e-9))
+        start = turn.start if turn.start is not None else max(0.0, cursor + turn.gap)
+        end = start + len(audio) / sample_rate
+        clips.append((turn.speaker, int(round(start * sample_rate)), audio))
+        timings.append(TurnTiming(turn.speaker, turn.text, turn.voice, turn.rate, start, end))
+        cursor = end
+    total = int(round((max(t.end for t in timings) + tail) * sample_rate))
+    stereo = np.zeros((total, 2), np.float32)
+    for speaker, offset, audio in clips:
+        stereo[offset : offset + len(audio), speaker] += audio
+    if noise_level > 0:
+        stereo += np.random.default_rng(seed).normal(0.0, noise_level, stereo.shape).astype(np.float32)
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        sf.write(tmp, np.clip(stereo, -1.0, 1.0), sample_rate, subtype="PCM_16", format="WAV")
+    return DialogueInfo(path, sample_rate, total / sample_rate, tuple(timings))

@@ -1,0 +1,75 @@
+"""``convodrive drive``: audio in, motion out to the named backends."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from convodrive.cli.options import backend_key_value, channel_map, key_value, name_list, positive_int
+from convodrive.cli.progress import frame_progress
+from convodrive.pipeline import DEFAULT_GENERATOR, DriveRequest, DriveResult, drive
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "drive",
+        help="turn a conversation recording into motion for one or more backends",
+        description="Generate motion from AUDIO (channel 0 = self, 1 = partner; mono = silent partner) "
+        "and send it at 30 fps to each backend.",
+    )
+    p.add_argument("audio", type=Path, metavar="AUDIO", help="WAV, FLAC or OGG file, any sample rate")
+    p.add_argument("--generator", default=DEFAULT_GENERATOR, help=f"generator plugin (default: {DEFAULT_GENERATOR})")
+    p.add_argument("--backend", type=name_list, default=("record",), metavar="NAME[,NAME]",
+                   help="backend plugins, comma-separated (default: record)")
+    p.add_argument("--config", type=Path, metavar="FILE", help="robot profile or run preset (YAML)")
+    p.add_argument("--out", type=Path, default=Path("convodrive-out"), metavar="DIR", help="output folder (default: ./convodrive-out)")
+    p.add_argument("--seed", type=int, default=0, help="random seed: the same seed gives the same motion (default: 0)")
+    p.add_argument("--samples", type=positive_int, default=1, metavar="K", help="generate K takes of the same audio")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--realtime", action="store_true", help="pace frames by the wall clock (for hardware and live windows)")
+    mode.add_argument("--offline", action="store_true", help="simulated clock, as fast as possible (default)")
+    p.add_argument("--channels", type=channel_map, metavar="SELF,OTHER",
+                   help="which file channels are self and partner (needed for files with more than 2 channels)")
+    p.add_argument("--motion", type=Path, metavar="FILE", help="motion file for the replay generator (.npz or .bvh)")
+    p.add_argument("-G", "--generator-option", type=key_value, action="append", default=[], metavar="KEY=VALUE",
+                   help="generator option, e.g. -G expressiveness=1.5")
+    p.add_argument("-B", "--backend-option", type=backend_key_value, action="append", default=[], metavar="BACKEND.KEY=VALUE",
+                   help="backend option, e.g. -B render.camera=face")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    gen_options = dict(args.generator_option)
+    if args.motion is not None:
+        gen_options["motion"] = str(args.motion)
+    backend_options: dict[str, dict] = {}
+    for backend, key, value in args.backend_option:
+        backend_options.setdefault(backend, {})[key] = value
+    request = DriveRequest(
+        audio=args.audio,
+        generator=args.generator,
+        backends=args.backend,
+        config=args.config,
+        out_dir=args.out,
+        seed=args.seed,
+        samples=args.samples,
+        realtime=bool(args.realtime),
+        channels=args.channels,
+        generator_options=gen_options,
+        backend_options=backend_options,
+    )
+    with frame_progress("driving", enabled=not request.realtime) as progress:
+        result = drive(request, on_frame=progress)
+    print_result(result)
+    return 130 if result.report["interrupted"] else 0
+
+
+def print_result(result: DriveResult) -> None:
+    from convodrive.report import summarize
+
+    print(summarize(result.report))
+    for path in result.outputs:
+        print(f"wrote {path}")
+    print(f"run report: {result.report_path}")
+    sys.stdout.flush()

@@ -1,0 +1,105 @@
+"""The run report: what every run ends with, as JSON (for tools) and as a readable summary."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from convodrive import __version__
+from convodrive.atomic import write_text_atomic
+from convodrive.scheduler import RunResult
+
+
+def _percentiles(values: list[float], scale: float = 1.0) -> dict[str, float] | None:
+    if not values:
+        return None
+    arr = np.asarray(values, dtype=np.float64) * scale
+    return {
+        "p50": round(float(np.percentile(arr, 50)), 3),
+        "p99": round(float(np.percentile(arr, 99)), 3),
+        "max": round(float(arr.max()), 3),
+    }
+
+
+def build_report(result: RunResult, context: dict[str, Any], failed_at_open: dict[str, str] | None = None) -> dict[str, Any]:
+    """Turn a scheduler result plus run context (audio, generator, outputs) into the report dict."""
+    backends: dict[str, Any] = {}
+    for stats in result.backends:
+        backends[stats.name] = {
+            "frames_sent": stats.sent,
+            "frames_dropped": stats.dropped,
+            "errors": stats.errors,
+            "last_error": stats.last_error,
+            "failed": stats.failed,
+            "close_error": stats.close_error,
+            "send_ms": _percentiles(stats.send_seconds, 1000.0),
+            "health": result.backend_health.get(stats.name, {}),
+            "health_events": stats.health_events,
+            "report": result.backend_reports.get(stats.name, {}),
+        }
+    for name, problem in (failed_at_open or {}).items():
+        backends[name] = {"failed": True, "open_error": problem, "frames_sent": 0, "frames_dropped": result.frames}
+    gen_rtf = result.audio_seconds / result.generator_seconds if result.generator_seconds > 0 else None
+    report = {
+        "convodrive_version": __version__,
+        "mode": result.mode,
+        "interrupted": result.interrupted,
+        "frames": result.frames,
+        "expected_frames": result.expected_frames,
+        "wall_seconds": round(result.wall_seconds, 3),
+        "effective_fps": round(result.frames / result.wall_seconds, 2) if result.wall_seconds > 0 else None,
+        "jitter_ms": _percentiles(result.jitter_ms),
+        "late_frames": result.late_frames,
+        "drift_frames": round(result.drift_frames, 3),
+        "generator_real_time_factor": round(gen_rtf, 1) if gen_rtf else None,
+        "backends": backends,
+    }
+    report.update(context)
+    return report
+
+
+def summarize(report: dict[str, Any]) -> str:
+    """A few readable lines: the figures a user looks at first."""
+    lines = [
+        f"{report['mode']} run: {report['frames']} frames in {report['wall_seconds']:.2f} s "
+        f"({report['effective_fps']} fps effective)" + (" — interrupted" if report["interrupted"] else ""),
+    ]
+    jit = report.get("jitter_ms")
+    if jit:
+        lines.append(
+            f"frame-time jitter p50 {jit['p50']:.3f} ms, p99 {jit['p99']:.3f} ms, max {jit['max']:.3f} ms; "
+            f"late frames {report['late_frames']}; drift {report['drift_frames']:.2f} frames"
+        )
+    if report.get("generator_real_time_factor"):
+        lines.append(f"generator {report.get('generator', {}).get('name', '?')}: {report['generator_real_time_factor']}x real time")
+    for name, b in report["backends"].items():
+        state = "FAILED" if b.get("failed") else b.get("health", {}).get("status", "ok")
+        detail = b.get("open_error") or b.get("last_error") or ""
+        lines.append(
+            f"  {name:<10} {state:<9} sent {b.get('frames_sent', 0):>6}  dropped {b.get('frames_dropped', 0):>6}  "
+            f"errors {b.get('errors', 0):>4}" + (f"  ({detail})" if detail else "")
+        )
+    return "\n".join(lines)
+
+
+def write_report(report: dict[str, Any], out_dir: Path) -> tuple[Path, Path]:
+    json_path = out_dir / "run_report.json"
+    text_path = out_dir / "run_report.txt"
+    write_text_atomic(json_path, json.dumps(report, indent=2, default=_json_default) + "\n")
+    write_text_atomic(text_path, summarize(report) + "\n")
+    return json_path, text_path
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (np.floating,)):
+        return float(obj)
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    return str(obj)

@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# Set up convodrive on a fresh Debian or Ubuntu machine: system libraries, a virtual environment
+# in .venv, and the package with the extras the demo needs. Safe to run again.
+#
+#   scripts/setup.sh          everything `convodrive demo` needs
+#   scripts/setup.sh --dev    and the test tools
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+dev=0
+[ "${1:-}" = "--dev" ] && dev=1
+
+# espeak-ng makes the tests' speech; ffmpeg brings ffprobe for checking videos; EGL and OSMesa are
+# the two headless GL routes for the renderer and MuJoCo.
+apt_packages=(espeak-ng ffmpeg libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6)
+missing=()
+for pkg in "${apt_packages[@]}"; do
+    dpkg -s "$pkg" >/dev/null 2>&1 || missing+=("$pkg")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+    sudo=""
+    [ "$(id -u)" -ne 0 ] && sudo="sudo"
+    echo "setup: installing system packages: ${missing[*]}"
+    $sudo apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "${missing[@]}" >/dev/null
+fi
+
+python=${PYTHON:-python3}
+[ -x .venv/bin/python ] || "$python" -m venv .venv
+pip=(.venv/bin/python -m pip --disable-pip-version-check -q)
+"${pip[@]}" install -U pip setuptools wheel 2>&1 | grep -v '^WARNING: Location' || true
+extras="speech,sim,render,hardware"
+[ "$dev" = 1 ] && extras="$extras,dev"
+"${pip[@]}" install -e ".[$extras]" 2>&1 | grep -v '^WARNING: Location' || true
+# pyrender 0.1.45 pins PyOpenGL==3.1.0, which breaks MuJoCo's EGL/OSMesa bindings. The render
+# extra installs pyrender's real dependencies with PyOpenGL>=3.1.7; pyrender itself goes in
+# without its pin. See README, "Headless GL and the PyOpenGL pin".
+"${pip[@]}" install --no-deps "pyrender==0.1.45" 2>&1 | grep -v '^WARNING: Location' || true
+.venv/bin/python -c "import convodrive, OpenGL; assert tuple(map(int, OpenGL.__version__.split('.')[:3])) >= (3, 1, 7), OpenGL.__version__" \
+    || { echo "setup: PyOpenGL is older than 3.1.7; MuJoCo's headless GL would break" >&2; exit 1; }
+echo "setup: ready (.venv)"
