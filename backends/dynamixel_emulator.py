@@ -159,6 +159,7 @@ class DynamixelEmulator:
         self.baudrate = baudrate
         self.servos: dict[int, EmulatedServo] = {i: EmulatedServo(i, spec, clock) for i in ids}
         self.goal_log: list[GoalWrite] = []
+        self.torque_log: list[GoalWrite] = []  # (time, id, Torque_Enable value) for every accepted write
         self.counters = {"packets": 0, "replies": 0, "dropped": 0, "corrupted": 0, "crc_errors_in": 0, "refused_goals": 0}
         self._lock = threading.RLock()
         self._buffer = bytearray()
@@ -366,12 +367,13 @@ class DynamixelEmulator:
         if servo is None or not servo.alive:
             return dp.ERR_RESULT_FAIL
         error = servo.write(address, bytes(data))
-        goal = servo.table.reg("Goal_Position")
-        if goal.address >= address and goal.address + goal.size <= address + len(data):
-            if error:
-                self.counters["refused_goals"] += 1
-            else:
-                self.goal_log.append(GoalWrite(self.clock(), servo_id, servo.get("Goal_Position")))
+        for name, log in (("Goal_Position", self.goal_log), ("Torque_Enable", self.torque_log)):
+            reg = servo.table.reg(name)
+            if reg.address >= address and reg.address + reg.size <= address + len(data):
+                if not error:
+                    log.append(GoalWrite(self.clock(), servo_id, servo.get(name)))
+                elif name == "Goal_Position":
+                    self.counters["refused_goals"] += 1
         return error
 
 

@@ -24,7 +24,7 @@ class Register:
     writable: bool = True
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class ControlTable:
     """One family's register map plus the facts needed to turn ticks into radians."""
 

@@ -20,9 +20,11 @@ from convodrive.atomic import atomic_path
 from convodrive.backends.base import Backend, Session
 from convodrive.errors import UserError
 from convodrive.motion.bvh import write_bvh
+from convodrive.motion.channels import NUM_BLENDSHAPES
 from convodrive.motion.clip import MotionClip
 from convodrive.motion.livelink import write_livelink_csv
 from convodrive.motion.npz import save_clip
+from convodrive.motion.skeleton import NUM_JOINTS
 from convodrive.targets import TargetFrame, TargetSpec
 
 log = logging.getLogger(__name__)
@@ -39,7 +41,9 @@ class RecordBackend(Backend):
         if not stem or "/" in stem or "\\" in stem or stem.startswith("."):
             raise UserError(f"backend 'record': option stem must be a plain file name, got {stem!r}")
         self.stem = stem
-        self._frames: dict[int, TargetFrame] = {}
+        self._takes: list[dict[str, np.ndarray]] = []
+        self._values = np.zeros((0, 0), np.float32)
+        self._received = np.zeros(0, bool)
         self._written: list[Path] = []
         self._errors: list[str] = []
         self._filled = 0
@@ -50,8 +54,30 @@ class RecordBackend(Backend):
         session.out_dir.mkdir(parents=True, exist_ok=True)
 
     def send(self, frame: TargetFrame) -> None:
-        # Frames are small (a few kB); a two-hour session holds about 200 MB per take.
-        self._frames[frame.index] = frame
+        # Compact float32 rows (under 1 kB a frame and take): a two-hour session is ~200 MB a take.
+        if not self._takes:
+            self._takes = [_empty_take(0) for _ in frame.takes]
+            self._values = np.zeros((0, len(self.spec.names)), np.float32)
+        i = frame.index
+        if i >= len(self._received):
+            self._grow(max(2 * len(self._received), i + 1, 256))
+        for k, take in enumerate(self._takes):
+            m = frame.takes[min(k, len(frame.takes) - 1)]
+            take["pose"][i], take["translation"][i], take["face"][i] = m.pose, m.translation, m.face
+            take["vad"][i], take["state"][i] = m.vad, int(m.state)
+        if len(self.spec.names):
+            self._values[i] = frame.values
+        self._received[i] = True
+
+    def _grow(self, capacity: int) -> None:
+        def grown(a: np.ndarray) -> np.ndarray:
+            out = np.zeros((capacity,) + a.shape[1:], a.dtype)
+            out[: len(a)] = a
+            return out
+
+        self._takes = [{k: grown(a) for k, a in take.items()} for take in self._takes]
+        self._values = grown(self._values)
+        self._received = grown(self._received)
 
     def close(self) -> None:
         """Write every output; a failed file is absent (never partial) and is reported, then raised."""
@@ -82,27 +108,22 @@ class RecordBackend(Backend):
     def _assemble(self) -> tuple[list[MotionClip], np.ndarray, np.ndarray]:
         """Clips per take and target values, one frame per index, gaps held from the previous frame."""
         assert self.session is not None
-        received = sorted(self._frames)
-        if not received:
+        got = np.flatnonzero(self._received)
+        if not len(got):
             return [], np.zeros((0, len(self.spec.names))), np.zeros(0)
-        total = max(received[-1] + 1, self.session.num_frames or 0)
-        self._num_frames = total
-        ordered: list[TargetFrame] = []
-        current = self._frames[received[0]]  # a gap at the start takes the first frame that came
-        for i in range(total):
-            if i in self._frames:
-                current = self._frames[i]
-            else:
-                self._filled += 1
-            ordered.append(current)
+        total = max(int(got[-1]) + 1, self.session.num_frames or 0)
+        received = np.zeros(total, bool)
+        received[: min(total, len(self._received))] = self._received[:total]
+        # Each frame's source: the latest received index at or before it (the first one for a gap at the start).
+        source = np.maximum.accumulate(np.where(received, np.arange(total), -1))
+        source[source < 0] = got[0]
+        self._num_frames, self._filled = total, int(total - received.sum())
         fps = self.session.fps
-        num_takes = max(len(f.takes) for f in ordered)
-        clips = []
-        for k in range(num_takes):
-            frames = [f.takes[min(k, len(f.takes) - 1)] for f in ordered]
-            clips.append(MotionClip.from_frames(frames, fps=fps, metadata={"take": k, "seed": self.session.seed}))
-        values = np.stack([np.asarray(f.values, np.float64) for f in ordered]) if self.spec.names else np.zeros((total, 0))
-        return clips, values, np.arange(total) / fps
+        clips = [
+            MotionClip(**{k: a[source] for k, a in take.items()}, fps=fps, metadata={"take": k, "seed": self.session.seed})
+            for k, take in enumerate(self._takes)
+        ]
+        return clips, self._values[source], np.arange(total) / fps
 
     def _save_targets(self, path: Path, values: np.ndarray, times: np.ndarray) -> None:
         with atomic_path(path) as tmp:
@@ -117,11 +138,11 @@ class RecordBackend(Backend):
                 )
 
     def health(self) -> dict[str, Any]:
-        return {"status": "failed" if self._errors else "ok", "frames_received": len(self._frames)}
+        return {"status": "failed" if self._errors else "ok", "frames_received": int(self._received.sum())}
 
     def report(self) -> dict[str, Any]:
         return {
-            "frames_received": len(self._frames),
+            "frames_received": int(self._received.sum()),
             "frames_filled": self._filled,
             "frames_written": self._num_frames,
             "outputs": [str(p) for p in self._written],
@@ -131,3 +152,13 @@ class RecordBackend(Backend):
     def outputs(self) -> list[Path]:
         return list(self._written)
 
+
+
+def _empty_take(capacity: int) -> dict[str, np.ndarray]:
+    return {
+        "pose": np.zeros((capacity, NUM_JOINTS, 3), np.float32),
+        "translation": np.zeros((capacity, 3), np.float32),
+        "face": np.zeros((capacity, NUM_BLENDSHAPES), np.float32),
+        "vad": np.zeros((capacity, 2), np.float32),
+        "state": np.zeros(capacity, np.int8),
+    }

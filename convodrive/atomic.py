@@ -13,6 +13,16 @@ from pathlib import Path
 from typing import Iterator
 
 
+def _read_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _read_umask()
+"""Read once at import: os.umask is process-wide, so reading it while threads write is racy."""
+
+
 @contextlib.contextmanager
 def atomic_path(destination: str | os.PathLike[str], suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``destination``; rename it into place on success.
@@ -29,6 +39,7 @@ def atomic_path(destination: str | os.PathLike[str], suffix: str | None = None) 
     tmp = Path(tmp_name)
     try:
         yield tmp
+        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; outputs get the usual mode
         os.replace(tmp, dest)
     finally:
         if tmp.exists():

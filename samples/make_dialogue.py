@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Sequence
 
 from convodrive.atomic import write_text_atomic
 from convodrive.audio.synth import PARTNER, SELF, DialogueInfo, Turn, synthesize_dialogue
@@ -35,9 +36,11 @@ def dialogue_turns() -> list[Turn]:
     ]
 
 
-def make_dialogue(out_wav: Path = HERE / "dialogue.wav", sample_rate: int = 16000, seed: int = 7) -> DialogueInfo:
-    """Write the WAV and its JSON sidecar (each turn's speaker, start, end and text)."""
-    info = synthesize_dialogue(dialogue_turns(), out_wav, sample_rate=sample_rate, seed=seed)
+def make_dialogue(
+    turns: Sequence[Turn] | None = None, out_wav: Path = HERE / "dialogue.wav", sample_rate: int = 16000, seed: int = 7
+) -> DialogueInfo:
+    """Write the WAV (the bundled turns by default) and its JSON sidecar: each turn's speaker, start, end, text."""
+    info = synthesize_dialogue(turns or dialogue_turns(), out_wav, sample_rate=sample_rate, seed=seed)
     write_text_atomic(Path(out_wav).with_suffix(".json"), json.dumps(info.to_json(), indent=2) + "\n")
     return info
 

@@ -28,11 +28,12 @@ from convodrive.audio.source import ANALYSIS_RATE
 SAMPLES_PER_FRAME = ANALYSIS_RATE / FPS  # 533.33...
 WINDOW = 1024
 """F0 and spectral window, samples: two periods of a 70 Hz voice."""
-SPECTRUM_WINDOW = 512
+SPECTRUM_WINDOW = 256
+_ACTIVE_DB = -56.0
+"""Frames quieter than this (dBFS) cannot hold a voice: F0 and spectrum are skipped there."""
 TRACK_LOOKAHEAD = 2
 """Raw frames past frame f that deciding frame f's peaks (accents, nuclei) may look at."""
 _F0_MIN, _F0_MAX = 70.0, 400.0
-_LAG_MIN, _LAG_MAX = int(ANALYSIS_RATE / _F0_MAX), int(math.ceil(ANALYSIS_RATE / _F0_MIN))
 _HISTORY = 48
 """Raw frames of history the tracker keeps (laughter looks back 1 s)."""
 
@@ -65,55 +66,101 @@ def raw_frames(padded: np.ndarray, pad_start: int, first: int, count: int) -> di
     """
     k = np.arange(first, first + count)
     # Loudness: RMS over the frame's own samples.
-    starts, stops = frame_edge(k) - pad_start, frame_edge(k + 1) - pad_start
-    sq = np.concatenate([[0.0], np.cumsum(padded.astype(np.float64) ** 2)])
-    power = (sq[stops] - sq[starts]) / (stops - starts)
+    starts, lengths = frame_edge(k) - pad_start, frame_edge(k + 1) - frame_edge(k)  # 533 or 534
+    sq = np.cumsum(sliding_window_view(padded, 534)[starts].astype(np.float64) ** 2, axis=1)
+    power = np.where(lengths == 534, sq[:, 533], sq[:, 532]) / lengths
     db = 10.0 * np.log10(power + 1e-10)
 
-    # F0: normalised autocorrelation over a window centred on the frame.
-    centres = frame_centre(k) - pad_start
-    views = sliding_window_view(padded, WINDOW)
-    win = views[centres - WINDOW // 2].astype(np.float64)
-    win = win - win.mean(axis=1, keepdims=True)
-    spec = np.fft.rfft(win, n=2 * WINDOW, axis=1)
-    acf = np.fft.irfft(spec.real**2 + spec.imag**2, axis=1)[:, : _LAG_MAX + 2]
-    csum = np.concatenate([np.zeros((count, 1)), np.cumsum(win**2, axis=1)], axis=1)
-    lags = np.arange(_LAG_MAX + 2)
-    e_head = csum[:, WINDOW - lags]
+    f0 = np.full(count, 100.0)
+    best = np.zeros(count)
+    centroid, f1, f2, low, hiss = (np.zeros(count) for _ in range(5))
+    # The rest only matters where there may be a voice; skipping quiet frames halves the cost.
+    rows = np.flatnonzero(db > _ACTIVE_DB)
+    if len(rows):
+        centres = frame_centre(k[rows]) - pad_start
+        win16 = sliding_window_view(padded, WINDOW)[centres - WINDOW // 2].astype(np.float64)
+        f0[rows], best[rows] = _pitch(win16)
+        centroid[rows], f1[rows], f2[rows], low[rows], hiss[rows] = _spectral_shape(win16)
+    return {"db": db, "f0": f0, "periodicity": best, "centroid": centroid, "f1_frac": f1, "f2_frac": f2,
+            "low_frac": low, "hiss_frac": hiss}
+
+
+def _pitch(win16: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """F0 (Hz) and periodicity (peak normalised autocorrelation) of 16 kHz windows, at 8 kHz.
+
+    Pairs of samples are averaged (a crude low-pass, ample for pitch) to halve the work.
+    """
+    rate = ANALYSIS_RATE // 2
+    lag_min, lag_max = int(rate / _F0_MAX), int(math.ceil(rate / _F0_MIN))
+    win = win16.reshape(len(win16), -1, 2).mean(axis=2)
+    n = win.shape[1]
+    win = win - _row_sum(win)[:, None] / n
+    spec = _rows_rfft(win, n + lag_max + 8)
+    acf = _rows_irfft(spec.real**2 + spec.imag**2, n + lag_max + 8)[:, : lag_max + 2]
+    csum = np.concatenate([np.zeros((len(win), 1)), np.cumsum(win**2, axis=1)], axis=1)
+    lags = np.arange(lag_max + 2)
+    e_head = csum[:, n - lags]
     e_tail = csum[:, -1:] - csum[:, lags]
     nac = acf / np.sqrt(e_head * e_tail + 1e-12)
-    band = nac[:, _LAG_MIN : _LAG_MAX + 1]
+    band = nac[:, lag_min : lag_max + 1]
     best = band.max(axis=1)
     # The shortest lag close to the best avoids halving F0 (picking a multiple of the period).
-    lag = _LAG_MIN + np.argmax(band >= 0.92 * best[:, None], axis=1)
-    # Parabolic refinement around the chosen lag.
-    rows = np.arange(count)
-    y0, y1, y2 = nac[rows, lag - 1], nac[rows, lag], nac[rows, lag + 1]
+    lag = lag_min + np.argmax(band >= 0.92 * best[:, None], axis=1)
+    r = np.arange(len(win))
+    y0, y1, y2 = nac[r, lag - 1], nac[r, lag], nac[r, lag + 1]
     denom = y0 - 2 * y1 + y2
-    shift = np.where(np.abs(denom) > 1e-9, 0.5 * (y0 - y2) / np.where(np.abs(denom) > 1e-9, denom, 1.0), 0.0)
-    f0 = ANALYSIS_RATE / (lag + np.clip(shift, -0.5, 0.5))
+    ok = np.abs(denom) > 1e-9
+    shift = np.where(ok, 0.5 * (y0 - y2) / np.where(ok, denom, 1.0), 0.0)
+    return rate / (lag + np.clip(shift, -0.5, 0.5)), best
 
-    # Spectral shape from the central SPECTRUM_WINDOW samples: which mouth shape the sound suggests.
+
+_SPEC_FREQS = np.fft.rfftfreq(SPECTRUM_WINDOW, 1.0 / ANALYSIS_RATE)
+_HANN = np.hanning(SPECTRUM_WINDOW)
+
+
+def _spectral_shape(win16: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Centroid and band fractions of the central ``SPECTRUM_WINDOW`` samples: the mouth shape the
+    sound suggests (open vowels: F1 band; front vowels: F2 band; rounded: low band; hiss)."""
     half = (WINDOW - SPECTRUM_WINDOW) // 2
-    mag = np.abs(np.fft.rfft(win[:, half : half + SPECTRUM_WINDOW] * np.hanning(SPECTRUM_WINDOW), axis=1)) ** 2
-    freqs = np.fft.rfftfreq(SPECTRUM_WINDOW, 1.0 / ANALYSIS_RATE)
-    total = mag[:, (freqs >= 80)].sum(axis=1) + 1e-12
-    speechband = mag[:, (freqs >= 200) & (freqs < 3000)].sum(axis=1) + 1e-12
+    mag = np.abs(_rows_rfft(win16[:, half : half + SPECTRUM_WINDOW] * _HANN, SPECTRUM_WINDOW)) ** 2
+    f = _SPEC_FREQS
+    # Band sums as differences of a running sum along each row: the same arithmetic in every row
+    # whatever the batch's shape (a plain sum may change its order with the shape).
+    c = np.concatenate([np.zeros((len(mag), 1)), np.cumsum(mag, axis=1)], axis=1)
+
+    def band(lo: float, hi: float) -> np.ndarray:
+        return c[:, np.searchsorted(f, hi)] - c[:, np.searchsorted(f, lo)]
+
+    total = band(80, 1e9) + 1e-12
+    speech = band(200, 3000) + 1e-12
 
     def frac(lo: float, hi: float, ref: np.ndarray) -> np.ndarray:
-        return mag[:, (freqs >= lo) & (freqs < hi)].sum(axis=1) / ref
+        return band(lo, hi) / ref
 
-    centroid = (mag * freqs).sum(axis=1) / (mag.sum(axis=1) + 1e-12)
-    return {
-        "db": db,
-        "f0": f0,
-        "periodicity": best,
-        "centroid": centroid,
-        "f1_frac": frac(550, 1100, speechband),
-        "f2_frac": frac(1600, 3000, speechband),
-        "low_frac": frac(200, 550, speechband),
-        "hiss_frac": frac(3500, 8000, total),
-    }
+    centroid = _row_sum(mag * f) / (c[:, -1] + 1e-12)
+    return centroid, frac(550, 1100, speech), frac(1600, 3000, speech), frac(200, 550, speech), frac(3500, 8000, total)
+
+
+def _row_sum(x: np.ndarray) -> np.ndarray:
+    """Sum along each row in a fixed sequential order (see ``_spectral_shape``)."""
+    return np.cumsum(x, axis=1)[:, -1]
+
+
+def _rows_irfft(x: np.ndarray, n: int) -> np.ndarray:
+    rows = len(x)
+    padded = np.zeros((-(-rows // 8) * 8, x.shape[1]), complex)
+    padded[:rows] = x
+    return np.fft.irfft(padded, n=n, axis=1)[:rows]
+
+
+def _rows_rfft(x: np.ndarray, n: int) -> np.ndarray:
+    """Row-wise rfft, padded to a multiple of 8 rows so every row takes the same SIMD code path
+    (the FFT rounds a row differently in a full vector lane than in the remainder), which keeps
+    results bit-identical however many frames a batch holds."""
+    rows = len(x)
+    padded = np.zeros((-(-rows // 8) * 8, x.shape[1]))
+    padded[:rows] = x
+    return np.fft.rfft(padded, n=n, axis=1)[:rows]
 
 
 @dataclasses.dataclass
@@ -232,9 +279,9 @@ class VoiceTracker:
                 strength = min(1.0, 0.4 + dip)
                 out["nucleus"][j] = strength
                 self._since_nucleus = 0
-                self._nuclei.append(f)
+                self._nuclei.append((f, rel))
                 self._env_mean = 0.9 * self._env_mean + 0.1 * e
-                accented = np.any(out["accent"][max(j - 3, 0) : j + 1] > 0)
+                accented = self._since_accent <= 3
                 if accented or e > self._env_mean + 0.04:
                     out["stress"][j] = min(1.0, strength + (0.3 if accented else 0.0))
             if self._vad and loud[i] - loud[max(i - 2, 0)] > 0.25:
@@ -247,16 +294,18 @@ class VoiceTracker:
             for name in RAW_FIELDS:
                 r[name] = r[name][keep_from:]
             self._offset += keep_from
-        self._nuclei = [t for t in self._nuclei if t > end - 40]
+        self._nuclei = [n for n in self._nuclei if n[0] > end - 40]
         return out
 
     def _laughter(self, f: int, rel_pitch: float) -> float:
-        """Laughter-like burst: four or more evenly spaced loud nuclei at 3.5 to 7 per second."""
-        recent = [t for t in self._nuclei if f - t <= 32]
+        """Laughter-like burst: five or more evenly spaced nuclei at 3.5 to 7 per second, raised pitch."""
+        recent = [(t, st) for t, st in self._nuclei if f - t <= 36]
         score = 0.0
-        if len(recent) >= 4:
-            gaps = np.diff(recent)
-            if 4 <= gaps.mean() <= 9 and gaps.std() <= 0.25 * gaps.mean():
-                score = 1.0 if rel_pitch > -1.0 else 0.6
+        if len(recent) >= 5:
+            times = [t for t, _ in recent]
+            gaps = np.diff(times)
+            mean = float(gaps.mean())
+            if 4 <= mean <= 9 and float(gaps.std()) <= 0.2 * mean and sum(st for _, st in recent) / len(recent) > 1.5:
+                score = 1.0
         self._laugh = max(score, self._laugh * 0.93)
         return self._laugh

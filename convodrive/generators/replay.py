@@ -45,7 +45,8 @@ class ReplayGenerator(Generator):
         motion = self.options.get("motion")
         if not motion:
             raise UserError(
-                "generator 'replay' needs a motion file: set generator: {replay: {motion: FILE.npz|FILE.bvh}} in --config"
+                "generator 'replay' needs a motion file: pass --motion FILE (.npz or .bvh), "
+                "or set generator: {replay: {motion: FILE}} in the --config YAML"
             )
         self.clip = load_motion(motion)
         if self.clip.num_frames == 0:

@@ -34,6 +34,7 @@ UNITS_PER_METRE = 100.0
 """Our BVH files are in centimetres."""
 EULER_ORDER = "ZXY"
 FRAME_TIME = "0.0333333"
+_BLOCK = 1024
 _ROT_CHANNELS = [f"{axis}rotation" for axis in EULER_ORDER]
 _POS_CHANNELS = ["Xposition", "Yposition", "Zposition"]
 
@@ -96,11 +97,12 @@ def _motion_lines(clip: MotionClip) -> Iterator[str]:
     yield "MOTION"
     yield f"Frames: {clip.num_frames}"
     yield f"Frame Time: {FRAME_TIME if abs(clip.fps - 30) < 1e-9 else f'{1.0 / clip.fps:.7f}'}"
-    euler = np.degrees(rotations.axis_angle_to_euler(clip.pose[:, _DFS], EULER_ORDER))  # (T, 55, 3)
-    position = (REST_POSITIONS[0] + clip.translation) * UNITS_PER_METRE  # (T, 3)
-    rows = np.concatenate([position, euler.reshape(len(euler), -1)], axis=1)
-    for row in rows:
-        yield _fmt(row)
+    for start in range(0, clip.num_frames, _BLOCK):  # in blocks: hours of motion in bounded memory
+        block = slice(start, start + _BLOCK)
+        euler = np.degrees(rotations.axis_angle_to_euler(clip.pose[block][:, _DFS], EULER_ORDER))
+        position = (REST_POSITIONS[0] + clip.translation[block]) * UNITS_PER_METRE
+        for row in np.concatenate([position, euler.reshape(len(euler), -1)], axis=1):
+            yield _fmt(row)
 
 
 def write_bvh(clip: MotionClip, path: str | os.PathLike[str]) -> Path:

@@ -38,6 +38,7 @@ HEADER: tuple[str, ...] = (
     ("Timecode", "BlendShapeCount") + tuple(n[0].upper() + n[1:] for n in LIVELINK_BLENDSHAPES) + ROTATION_COLUMNS
 )
 _YAW_PITCH_ROLL = "YXZ"
+_BLOCK = 1024
 
 
 def timecode(seconds: float, fps: float) -> str:
@@ -49,26 +50,28 @@ def timecode(seconds: float, fps: float) -> str:
     return f"{whole // 3600:02d}:{whole // 60 % 60:02d}:{whole % 60:02d}:{ff:02d}.{mmm:03d}"
 
 
-def head_eye_rotations(clip: MotionClip) -> np.ndarray:
-    """(T, 9) yaw, pitch, roll of the head (global) and of the left and right eyes (in the head)."""
-    local = rotations.axis_angle_to_matrix(clip.pose)
+def head_eye_rotations(pose: np.ndarray) -> np.ndarray:
+    """(T, 9) yaw, pitch, roll of the head (global) and of the left and right eyes (in the head),
+    from local axis-angle poses (T, 55, 3)."""
+    local = rotations.axis_angle_to_matrix(pose)
     glob, _ = forward_kinematics(local)
     mats = np.stack(
         [glob[:, JOINT_INDEX["head"]], local[:, JOINT_INDEX["left_eye_smplhf"]], local[:, JOINT_INDEX["right_eye_smplhf"]]],
         axis=1,
     )
-    return rotations.matrix_to_euler(mats, _YAW_PITCH_ROLL).reshape(len(clip.pose), 9)
+    return rotations.matrix_to_euler(mats, _YAW_PITCH_ROLL).reshape(len(pose), 9)
 
 
 def write_livelink_csv(clip: MotionClip, path: str | os.PathLike[str]) -> Path:
     """Write ``clip`` as a Live Link Face CSV (atomically)."""
     path = Path(path)
     face = clip.face[:, [BLENDSHAPE_INDEX[n] for n in LIVELINK_BLENDSHAPES]]
-    angles = head_eye_rotations(clip)
     with atomic_path(path) as tmp:
         with open(tmp, "w", encoding="ascii", newline="") as fh:
             fh.write(",".join(HEADER) + "\r\n")
-            for i in range(clip.num_frames):
-                values = ",".join(f"{v:.6f}" for v in np.concatenate([face[i], angles[i]]))
-                fh.write(f"{timecode(i / clip.fps, clip.fps)},{BLENDSHAPE_COUNT},{values}\r\n")
+            for start in range(0, clip.num_frames, _BLOCK):  # in blocks: hours of motion in bounded memory
+                angles = head_eye_rotations(clip.pose[start : start + _BLOCK])
+                for i, row in enumerate(np.concatenate([face[start : start + _BLOCK], angles], axis=1), start):
+                    values = ",".join(f"{v:.6f}" for v in row)
+                    fh.write(f"{timecode(i / clip.fps, clip.fps)},{BLENDSHAPE_COUNT},{values}\r\n")
     return path

@@ -1,0 +1,57 @@
+"""Headless OpenGL selection for MuJoCo, made once per process before ``import mujoco``.
+
+MuJoCo and PyOpenGL fix their GL platform when first imported, so the choice must precede the
+import: an explicit ``MUJOCO_GL`` wins, then an explicit ``PYOPENGL_PLATFORM`` (so MuJoCo agrees
+with another renderer in the same process), else EGL is probed, then OSMesa, each in a short
+subprocess so that a broken driver cannot crash this one. Neither working leaves rendering off,
+with the reason kept for the run report; physics never depends on it.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+_PROBE = "import mujoco; c = mujoco.GLContext(16, 16); c.make_current(); c.free()"
+_choice: tuple[str | None, str] | None = None
+
+
+def _works(platform: str) -> tuple[bool, str]:
+    env = dict(os.environ, MUJOCO_GL=platform, PYOPENGL_PLATFORM=platform)
+    try:
+        proc = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, timeout=60)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return False, str(exc)
+    lines = proc.stderr.strip().splitlines()
+    return proc.returncode == 0, lines[-1] if lines else f"exit {proc.returncode}"
+
+
+def select_gl() -> tuple[str | None, str]:
+    """(platform or None, reason). Sets MUJOCO_GL and PYOPENGL_PLATFORM when it can still matter."""
+    global _choice
+    if _choice is not None:
+        return _choice
+    if "mujoco" in sys.modules:
+        current = os.environ.get("MUJOCO_GL") or None
+        _choice = (current, "mujoco was imported before GL selection; using its choice")
+        return _choice
+    explicit = os.environ.get("MUJOCO_GL") or os.environ.get("PYOPENGL_PLATFORM")
+    if explicit:
+        os.environ["MUJOCO_GL"] = explicit
+        if explicit in ("egl", "osmesa"):
+            os.environ.setdefault("PYOPENGL_PLATFORM", explicit)
+        _choice = (explicit, "set by the environment")
+        return _choice
+    failures = []
+    for platform in ("egl", "osmesa"):
+        ok, why = _works(platform)
+        if ok:
+            os.environ["MUJOCO_GL"] = platform
+            os.environ["PYOPENGL_PLATFORM"] = platform
+            _choice = (platform, "probed")
+            return _choice
+        failures.append(f"{platform}: {why}")
+    os.environ["MUJOCO_GL"] = "disable"
+    _choice = (None, "no headless OpenGL (MUJOCO_GL=egl or osmesa) works here: " + "; ".join(failures))
+    return _choice
