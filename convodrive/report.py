@@ -53,6 +53,7 @@ def build_report(result: RunResult, context: dict[str, Any], failed_at_open: dic
         "effective_fps": round(result.frames / result.wall_seconds, 2) if result.wall_seconds > 0 else None,
         "jitter_ms": _percentiles(result.jitter_ms),
         "late_frames": result.late_frames,
+        "clock_priority": result.clock_priority,
         "drift_frames": round(result.drift_frames, 3),
         "generator_real_time_factor": round(gen_rtf, 1) if gen_rtf else None,
         "backends": backends,

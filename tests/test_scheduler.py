@@ -72,13 +72,14 @@ def test_generator_error_reaches_the_caller_and_backends_still_close(tmp_path: P
 
 
 def test_latest_slot_keeps_the_newest_and_counts_drops() -> None:
-    slot = LatestSlot()
+    slot = LatestSlot(depth=2)
     for i in range(5):
         slot.put(i)
     slot.close()
-    assert slot.get() == 4
-    assert slot.dropped == 4
-    assert slot.get() is not None  # the end marker follows the last frame
+    assert [slot.get(), slot.get()] == [3, 4]
+    assert slot.dropped == 3
+    end = slot.get()
+    assert end not in (3, 4) and slot.get() is end  # the end marker follows the last frame
 
 
 def test_report_has_the_figures_and_a_readable_summary(tmp_path: Path) -> None:
