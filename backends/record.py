@@ -5,7 +5,7 @@ On ``close`` it writes, each file atomically, into the session's output folder:
 ``{stem}_livelink.csv`` (take 0), and, when the target spec has joints, ``targets.npz`` (arrays
 ``names`` (J,), ``values`` (T, J), ``time`` (T,); named ``{stem}_targets.npz`` for another stem).
 Frames that never arrived (dropped in real time) are filled by holding the previous frame, so the
-files always have one frame per 1/30 s; the report counts them.
+files have one frame per 1/30 s up to the last frame of the run; the report counts them.
 """
 
 from __future__ import annotations
@@ -111,7 +111,9 @@ class RecordBackend(Backend):
         got = np.flatnonzero(self._received)
         if not len(got):
             return [], np.zeros((0, len(self.spec.names))), np.zeros(0)
-        total = max(int(got[-1]) + 1, self.session.num_frames or 0)
+        # Up to the newest frame received: the scheduler always delivers a run's last frame, and a run
+        # stopped early (Ctrl-C) must not be padded out to the audio's length.
+        total = int(got[-1]) + 1
         received = np.zeros(total, bool)
         received[: min(total, len(self._received))] = self._received[:total]
         # Each frame's source: the latest received index at or before it (the first one for a gap at the start).

@@ -12,19 +12,17 @@ its profile's ``backends.<name>``, the run config's ``backends.<name>``, then th
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import os
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable
 
 import yaml
 
 from convodrive import FPS
-from convodrive.audio.source import AudioSource, ChannelMap
+from convodrive.audio.source import ANALYSIS_RATE, CHUNK_SAMPLES, AudioSource, ChannelMap
 from convodrive.backends.base import Backend, Session
 from convodrive.errors import InputFileError, UserError
 from convodrive.generators.base import Generator, take_seed
-from convodrive.motion.clip import MotionFrame
 from convodrive.plugins import BACKEND_GROUP, GENERATOR_GROUP, load_plugin
 from convodrive.report import build_report, write_report
 from convodrive.scheduler import Route, Scheduler
@@ -123,7 +121,11 @@ def drive(request: DriveRequest, on_frame: Callable[[int, int], None] | None = N
 
     gen_cls = load_plugin(GENERATOR_GROUP, request.generator)
     gen_options = {**config.generator_options(request.generator), **request.generator_options}
-    generators: list[Generator] = [gen_cls(gen_options) for _ in range(request.samples)]
+    generator: Generator = gen_cls(gen_options)
+    seeds = [take_seed(request.seed, i) for i in range(request.samples)]
+    # Real time reads audio in 100 ms chunks (the streaming latency); offline in 1 s chunks, which
+    # gives the same frames (generators are chunk-invariant) with less per-chunk overhead.
+    chunk_samples = CHUNK_SAMPLES if request.realtime else ANALYSIS_RATE
 
     routes, failed_at_open = _open_backends(request, config, session)
     total = session.num_frames or 0
@@ -133,7 +135,7 @@ def drive(request: DriveRequest, on_frame: Callable[[int, int], None] | None = N
             on_frame(index + 1, total)
 
     scheduler = Scheduler(
-        _take_frames(generators, source, request.seed),
+        generator.stream_takes(source.chunks(chunk_samples), seeds),
         routes,
         realtime=request.realtime,
         expected_frames=session.num_frames,
@@ -155,7 +157,7 @@ def drive(request: DriveRequest, on_frame: Callable[[int, int], None] | None = N
             "name": request.generator,
             "seed": request.seed,
             "samples": request.samples,
-            "lookahead_frames": generators[0].lookahead_frames,
+            "lookahead_frames": generator.lookahead_frames,
             "options": gen_options,
         },
         "config": str(request.config) if request.config else None,
@@ -164,13 +166,6 @@ def drive(request: DriveRequest, on_frame: Callable[[int, int], None] | None = N
     report = build_report(result, context, failed_at_open)
     report_path, summary_path = write_report(report, out_dir)
     return DriveResult(report, report_path, summary_path, outputs)
-
-
-def _take_frames(generators: list[Generator], source: AudioSource, seed: int) -> Iterator[tuple[MotionFrame, ...]]:
-    """One stream per take over one pass of the audio: ``tee`` buffers only the takes' small lag."""
-    chunk_streams = itertools.tee(source.chunks(), len(generators))
-    streams = [g.stream(chunks, seed=take_seed(seed, i)) for i, (g, chunks) in enumerate(zip(generators, chunk_streams))]
-    return zip(*streams)
 
 
 def _open_backends(request: DriveRequest, config: RunConfig, session: Session) -> tuple[list[Route], dict[str, str]]:

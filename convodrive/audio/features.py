@@ -22,10 +22,8 @@ import math
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from convodrive import FPS
 from convodrive.audio.source import ANALYSIS_RATE
 
-SAMPLES_PER_FRAME = ANALYSIS_RATE / FPS  # 533.33...
 WINDOW = 1024
 """F0 and spectral window, samples: two periods of a 70 Hz voice."""
 SPECTRUM_WINDOW = 256
@@ -165,16 +163,16 @@ def _rows_rfft(x: np.ndarray, n: int) -> np.ndarray:
 
 @dataclasses.dataclass
 class VoiceParams:
-    """Thresholds of the voice tracker; dBFS of frame RMS."""
+    """Thresholds of the voice tracker; dBFS of frame RMS. The VAD thresholds are minimums: in
+    noise they rise with the tracked noise floor (on at floor + 14 dB, off at floor + 8 dB)."""
 
     vad_on_db: float = -40.0
     vad_off_db: float = -48.0
     vad_hangover: int = 8
     """Frames below ``vad_off_db`` before the voice counts as stopped (about 250 ms)."""
-    floor_db: float = -55.0
-    peak_db: float = -14.0
     voicing: float = 0.55
-    accent_st: float = 1.5
+    accent_st: float = 1.0
+    """Semitones above the running pitch baseline that make a local F0 peak a pitch accent."""
 
 
 TRACK_FIELDS = (
@@ -187,8 +185,8 @@ class VoiceTracker:
     """Stateful per-voice tracking over raw frames: the decisions that need history or look-ahead.
 
     ``push(raw)`` appends raw frames and returns the tracked features of every frame that became
-    final (those with ``TRACK_LOOKAHEAD`` raw frames after them); ``flush`` finalises the rest at
-    the end of the audio, as if silence followed.
+    final (those with ``TRACK_LOOKAHEAD`` raw frames after them). At the end of the audio the
+    caller pads with silence (``DyadicAnalyzer.finish``).
     """
 
     def __init__(self, params: VoiceParams | None = None) -> None:
@@ -201,23 +199,16 @@ class VoiceTracker:
         self._baseline = float("nan")
         self._since_accent = 99
         self._since_nucleus = 99
-        self._nuclei: list[int] = []
+        self._nuclei: list[tuple[int, float, float]] = []
         self._laugh = 0.0
         self._env_mean = 0.3
+        self._floor: float | None = None  # noise floor, dBFS
+        self._level = -22.0  # running level of this voice's voiced frames, dBFS
 
     def push(self, raw: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         for name in RAW_FIELDS:
             self._raw[name] = np.concatenate([self._raw[name], raw[name]])
         end = self._offset + len(self._raw["db"]) - TRACK_LOOKAHEAD
-        return self._finalise(end)
-
-    def flush(self) -> dict[str, np.ndarray]:
-        silent = {name: np.zeros(TRACK_LOOKAHEAD) for name in RAW_FIELDS}
-        silent["db"] = np.full(TRACK_LOOKAHEAD, -100.0)
-        silent["f0"] = np.full(TRACK_LOOKAHEAD, 100.0)
-        end = self._offset + len(self._raw["db"])
-        for name in RAW_FIELDS:
-            self._raw[name] = np.concatenate([self._raw[name], silent[name]])
         return self._finalise(end)
 
     def _finalise(self, end: int) -> dict[str, np.ndarray]:
@@ -228,84 +219,97 @@ class VoiceTracker:
             return out
         p = self.p
         r = self._raw
-        off = self._offset
-        db_all = r["db"]
-        # Loudness envelope in [0, 1], smoothed over three frames (one of look-ahead).
-        loud = np.clip((db_all - p.floor_db) / (p.peak_db - p.floor_db), 0.0, 1.0)
-        idx = np.arange(start, end) - off
-        prev = np.maximum(idx - 1, 0)
-        env = 0.25 * loud[prev] + 0.5 * loud[idx] + 0.25 * loud[idx + 1]
-        voiced_raw = (r["periodicity"] >= p.voicing) & (db_all > p.vad_off_db)
-        st_all = 12.0 * np.log2(np.maximum(r["f0"], 1.0) / 100.0)
+        idx = np.arange(start, end) - self._offset
         for name in ("db", "f0", "centroid", "f1_frac", "f2_frac", "low_frac", "hiss_frac"):
             out[name] = r[name][idx]
-        out["env"] = env
-        for j, i in enumerate(idx):
+        db_all = r["db"].tolist()
+        periodic = (r["periodicity"] >= p.voicing).tolist()
+        st_all = (12.0 * np.log2(np.maximum(r["f0"], 1.0) / 100.0)).tolist()
+        f1, low = r["f1_frac"].tolist(), r["low_frac"].tolist()
+        o_vad, o_voiced, o_env, o_st = out["vad"], out["voiced"], out["env"], out["pitch_st"]
+        for j, i in enumerate(idx.tolist()):
             f = start + j
             db = db_all[i]
+            # Noise floor: follows dips at once and creeps up 1.5 dB/s; it raises the thresholds in noise.
+            self._floor = max(-80.0, min(db, self._floor + 0.05)) if self._floor is not None else max(-80.0, db)
+            # Thresholds follow the speaker's level down for quiet voices and the floor up in noise.
+            on_db = max(self._floor + 14.0, min(p.vad_on_db, self._level - 14.0))
+            off_db = max(self._floor + 8.0, min(p.vad_off_db, self._level - 22.0))
             # Voice activity with hysteresis: on after two loud frames, off after a hangover.
             if self._vad:
-                self._below = self._below + 1 if db < p.vad_off_db else 0
+                self._below = self._below + 1 if db < off_db else 0
                 if self._below > p.vad_hangover:
                     self._vad = False
-            elif db >= p.vad_on_db and db_all[i + 1] >= p.vad_off_db:
+            elif db >= on_db and db_all[i + 1] >= off_db:
                 self._vad = True
                 self._below = 0
-            out["vad"][j] = self._vad
-            voiced = bool(voiced_raw[i]) and self._vad
-            out["voiced"][j] = voiced
+            o_vad[j] = self._vad
+            voiced = self._vad and periodic[i] and db > off_db
+            o_voiced[j] = voiced
+            # Loudness in [0, 1] relative to this voice's running level (automatic gain): the level
+            # follows periodic frames well above the noise, so quiet voices are found too.
+            if periodic[i] and db > self._floor + 14.0:
+                self._level = max(-50.0, self._level + 0.01 * (db - self._level))
+            top = self._level + 7.0
+            bottom = max(self._floor + 4.0, top - 40.0)
+            span = top - bottom
+            e = min(1.0, max(0.0, (db - bottom) / span))
+            e_prev = min(1.0, max(0.0, (db_all[max(i - 1, 0)] - bottom) / span))
+            e_next = min(1.0, max(0.0, (db_all[i + 1] - bottom) / span))
+            env = 0.25 * e_prev + 0.5 * e + 0.25 * e_next
+            o_env[j] = env
             st = st_all[i]
             if voiced:
                 self._baseline = st if math.isnan(self._baseline) else 0.97 * self._baseline + 0.03 * st
             rel = st - self._baseline if voiced and not math.isnan(self._baseline) else 0.0
-            out["pitch_st"][j] = rel
+            o_st[j] = rel
             self._since_accent += 1
             self._since_nucleus += 1
-            lo, hi = max(i - 2, 0), i + TRACK_LOOKAHEAD + 1
+            w0, w1 = max(i - 2, 0), i + TRACK_LOOKAHEAD + 1
             # Pitch accent: a local F0 peak well above the speaker's running baseline, on a loud frame.
-            if (
-                voiced and rel > p.accent_st and env[j] > 0.35 and self._since_accent > 8
-                and st >= np.max(np.where(voiced_raw[lo:hi], st_all[lo:hi], -99.0))
+            if voiced and rel > p.accent_st and env > 0.35 and self._since_accent > 8 and st >= max(
+                st_all[k] if periodic[k] else -99.0 for k in range(w0, w1)
             ):
                 out["accent"][j] = min(1.0, rel / 6.0)
                 self._since_accent = 0
-            # Syllable nucleus: a local loudness peak after a dip.
-            e = loud[i]
-            dip = e - np.min(loud[max(i - 6, 0) : i + 1])
-            if (
-                self._vad and e > 0.3 and dip > 0.08 and self._since_nucleus > 3
-                and e >= np.max(loud[lo:hi])
-            ):
+            # Syllable nucleus: a local loudness peak after a dip of at least 8 % of the range.
+            dip = (db - min(db_all[max(i - 6, 0) : i + 1])) / span
+            if self._vad and e > 0.3 and dip > 0.08 and self._since_nucleus > 3 and db >= max(db_all[w0:w1]):
                 strength = min(1.0, 0.4 + dip)
                 out["nucleus"][j] = strength
                 self._since_nucleus = 0
-                self._nuclei.append((f, rel))
+                self._nuclei.append((f, f1[i], low[i]))
                 self._env_mean = 0.9 * self._env_mean + 0.1 * e
                 accented = self._since_accent <= 3
                 if accented or e > self._env_mean + 0.04:
                     out["stress"][j] = min(1.0, strength + (0.3 if accented else 0.0))
-            if self._vad and loud[i] - loud[max(i - 2, 0)] > 0.25:
-                out["onset"][j] = min(1.0, loud[i] - loud[max(i - 2, 0)])
-            out["laugh"][j] = self._laughter(f, rel)
+            rise = (db - db_all[max(i - 2, 0)]) / span
+            if self._vad and rise > 0.25:
+                out["onset"][j] = min(1.0, rise)
+            out["laugh"][j] = self._laughter()
         self._next = end
         # Keep only the history later frames still look at.
-        keep_from = max(0, end - off - _HISTORY)
+        keep_from = max(0, end - self._offset - _HISTORY)
         if keep_from:
             for name in RAW_FIELDS:
                 r[name] = r[name][keep_from:]
             self._offset += keep_from
-        self._nuclei = [n for n in self._nuclei if n[0] > end - 40]
+        self._nuclei = [nu for nu in self._nuclei if nu[0] > end - 40]
         return out
 
-    def _laughter(self, f: int, rel_pitch: float) -> float:
-        """Laughter-like burst: five or more evenly spaced nuclei at 3.5 to 7 per second, raised pitch."""
-        recent = [(t, st) for t, st in self._nuclei if f - t <= 36]
+    def _laughter(self) -> float:
+        """Laughter-like burst: five evenly spaced nuclei at 3.5 to 7.5 per second on the same vowel.
+
+        Speech at a similar syllable rate changes vowel from syllable to syllable (the F1 and low
+        band fractions vary by 0.15 or more); "ha ha ha" keeps them within a few hundredths.
+        """
         score = 0.0
-        if len(recent) >= 5:
-            times = [t for t, _ in recent]
-            gaps = np.diff(times)
+        last = self._nuclei[-5:]
+        if len(last) == 5 and last[-1][0] - last[0][0] <= 36 and self._since_nucleus == 0:
+            gaps = np.diff([t for t, _, _ in last])
             mean = float(gaps.mean())
-            if 4 <= mean <= 9 and float(gaps.std()) <= 0.2 * mean and sum(st for _, st in recent) / len(recent) > 1.5:
+            same_vowel = float(np.std([n[1] for n in last]) + np.std([n[2] for n in last]))
+            if 4 <= mean <= 8.5 and float(gaps.std()) <= 0.15 * mean and same_vowel < 0.08:
                 score = 1.0
         self._laugh = max(score, self._laugh * 0.93)
         return self._laugh

@@ -6,8 +6,8 @@ the utterance and are skipped: the decoder only hears speech, which keeps it fas
 cost of reading back each partial segmentation.
 
 ``viseme_at`` answers, after block b has been decoded, which viseme covers a motion frame, or
-``-1`` where the decoder has not (yet) committed to that time: the caller falls back to the
-spectral visemes there.
+``-1`` where the decoder has nothing for that time (not decoded yet, or a skipped quiet block):
+the caller falls back to the spectral visemes there.
 """
 
 from __future__ import annotations
@@ -90,8 +90,9 @@ class PhoneTracker:
             del self._starts[:200], self._ends[:200], self._vis[:200]
 
     def viseme_at(self, frames_10ms: np.ndarray) -> np.ndarray:
-        """Viseme covering each 10 ms frame: 0 (silence) outside speech, -1 where not decoded yet."""
-        out = np.zeros(len(frames_10ms), np.int64)
+        """Viseme covering each 10 ms frame, or -1 where nothing was decoded (yet): not reached by
+        the decoder, or a block skipped as quiet (where the voice tracker may still hear speech)."""
+        out = np.full(len(frames_10ms), -1, np.int64)
         for j, t in enumerate(frames_10ms.tolist()):
             if self._in_utt and t >= self._utt_start:
                 out[j] = _lookup(self._partial, t)
@@ -122,14 +123,17 @@ _POOL: list = []
 
 def _acquire_decoder():
     """A decoder from the pool, reset to the initial normalisation; loading one takes 0.25 s."""
-    if _POOL:
+    try:
         decoder = _POOL.pop()
+    except IndexError:
+        decoder = None
+    if decoder is not None:
         decoder.reinit_feat()  # forget the normalisation the last stream adapted
     else:
         from pocketsphinx import Decoder, get_model_path
 
         decoder = Decoder(
             hmm=get_model_path("en-us/en-us"), allphone=get_model_path("en-us/en-us-phone.lm.bin"),
-            loglevel="FATAL", lw=2.0, pip=0.3, beam=1e-20, pbeam=1e-20, ds=2, topn=2,
+            loglevel="FATAL", lw=2.0, pip=0.3, beam=1e-10, pbeam=1e-10, ds=2, topn=2,
         )
     return decoder

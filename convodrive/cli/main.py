@@ -19,6 +19,10 @@ COMMAND_MODULES: tuple[str, ...] = (
     "convodrive.cli.drive",
     "convodrive.cli.demo",
     "convodrive.cli.plugins",
+    "convodrive.cli.eval",
+    "convodrive.cli.render",
+    "convodrive.cli.emulate",
+    "convodrive.cli.servo",
 )
 
 EXIT_USER_ERROR = 2

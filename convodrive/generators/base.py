@@ -2,13 +2,15 @@
 
 A generator turns dyadic audio chunks into canonical motion frames at 30 fps, streaming, with a
 declared look-ahead: frame k may depend on audio up to (k + lookahead_frames + 1) / 30 seconds.
-The same seed must give the same frames; ``stream`` is called once per take with that take's seed.
+The same seed must give the same frames. ``stream`` keeps its state local to the call, so one
+generator can run several streams (takes) side by side.
 """
 
 from __future__ import annotations
 
 import abc
-from typing import Any, ClassVar, Iterable, Iterator
+import itertools
+from typing import Any, ClassVar, Iterable, Iterator, Sequence
 
 from convodrive.audio.source import AudioChunk, DyadicAudio
 from convodrive.motion.clip import MotionClip, MotionFrame
@@ -33,6 +35,16 @@ class Generator(abc.ABC):
         Frame k has ``time == k / 30``. The stream yields one frame per 1/30 s of audio (see
         ``motion_frames_for``) and then ends.
         """
+
+    def stream_takes(self, chunks: Iterable[AudioChunk], seeds: Sequence[int]) -> Iterator[tuple[MotionFrame, ...]]:
+        """Several takes of one audio stream, frame by frame: one frame per seed at each step.
+
+        The default runs one ``stream`` per seed over a ``tee`` of the chunks (which buffers only
+        the takes' small lag). Generators whose audio analysis does not depend on the seed should
+        override this to analyse once and synthesise each take from the shared features.
+        """
+        chunk_streams = itertools.tee(chunks, len(seeds))
+        return zip(*(self.stream(c, seed=s) for c, s in zip(chunk_streams, seeds)))
 
     def generate(self, audio: DyadicAudio, seed: int = 0, num_samples: int = 1) -> list[MotionClip]:
         """Offline: ``num_samples`` takes of the whole audio, take i seeded with ``take_seed(seed, i)``."""

@@ -1,0 +1,128 @@
+"""The default generator: conversational motion from dyadic audio by rules, with no model weights.
+
+Audio analysis (``convodrive.audio.analysis``) gives per-frame features of both voices and self's
+visemes with 3 frames (100 ms) of look-ahead; ``FaceSynth`` and ``BodySynth`` turn them into face
+channels and joint rotations. Every stage is chunk-invariant (state carried between batches,
+randomness indexed by absolute frame and seed), so streaming equals offline generation exactly.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Iterable, Iterator, Sequence
+
+import numpy as np
+
+from convodrive.audio.analysis import LOOKAHEAD_FRAMES, DyadicAnalyzer, FrameBatch
+from convodrive.audio.features import VoiceParams
+from convodrive.audio.phones import pocketsphinx_available
+from convodrive.audio.source import ANALYSIS_RATE, AudioChunk, DyadicAudio, motion_frames_for
+from convodrive.generators.base import Generator, take_seed
+from convodrive.generators.procedural.body import BodySynth, yxz_axis_angle
+from convodrive.generators.procedural.face import FaceSynth
+from convodrive.generators.procedural.options import ProceduralOptions
+from convodrive.motion.channels import ConversationState
+from convodrive.motion.clip import MotionClip, MotionFrame
+from convodrive.motion.skeleton import JOINT_INDEX as J
+
+__all__ = ["ProceduralGenerator", "ProceduralOptions"]
+
+
+class ProceduralGenerator(Generator):
+    name = "procedural"
+    description = ("Rule-based talking and listening motion from both voices (visemes, blinks, gaze, nods, "
+                   "beat gestures); no weights needed")
+
+    def __init__(self, options: dict[str, Any] | None = None) -> None:
+        super().__init__(options)
+        self.settings = ProceduralOptions.from_dict(self.options)
+
+    @property
+    def lookahead_frames(self) -> int:
+        return LOOKAHEAD_FRAMES
+
+    # -- public API ----------------------------------------------------------------------------
+    def stream(self, chunks: Iterable[AudioChunk], seed: int = 0) -> Iterator[MotionFrame]:
+        for takes in self.stream_takes(chunks, [seed]):
+            yield takes[0]
+
+    def stream_takes(self, chunks: Iterable[AudioChunk], seeds: Sequence[int]) -> Iterator[tuple[MotionFrame, ...]]:
+        """Analyse the audio once (the analysis ignores the seed) and synthesise every take from it."""
+        analyzer = self._analyzer()
+        synths = [_Synth(self.settings, s) for s in seeds]
+        received = 0
+        try:
+            for chunk in chunks:
+                received += len(chunk)
+                batch = analyzer.push(chunk.self_voice, chunk.other_voice)
+                if batch is not None:
+                    yield from zip(*(_frames(synth(batch)) for synth in synths))
+            batch = analyzer.finish(motion_frames_for(received / ANALYSIS_RATE))
+            if batch is not None:
+                yield from zip(*(_frames(synth(batch)) for synth in synths))
+        finally:
+            analyzer.close()
+
+    def generate(self, audio: DyadicAudio, seed: int = 0, num_samples: int = 1) -> list[MotionClip]:
+        """Analyse once, synthesise each take; equal to streaming (the analysis ignores the seed)."""
+        features = self.analyse(audio)
+        clips = []
+        for i in range(num_samples):
+            s = take_seed(seed, i)
+            arrays = _Synth(self.settings, s)(features)
+            clips.append(MotionClip(
+                pose=arrays["pose"], translation=arrays["translation"], face=arrays["face"], vad=arrays["vad"],
+                state=arrays["state"], metadata={"generator": self.name, "seed": s, "take": i,
+                                                 "phones": bool(self.settings.phones and pocketsphinx_available())}))
+        return clips
+
+    def analyse(self, audio: DyadicAudio) -> FrameBatch:
+        analyzer = self._analyzer()
+        try:
+            parts = [analyzer.push(audio.self_voice, audio.other_voice), analyzer.finish(audio.num_frames)]
+        finally:
+            analyzer.close()
+        return FrameBatch.concat([p for p in parts if p is not None])
+
+    def _analyzer(self) -> DyadicAnalyzer:
+        params = VoiceParams(vad_on_db=self.settings.vad_on_db, vad_off_db=self.settings.vad_off_db)
+        return DyadicAnalyzer(params, phones=self.settings.phones and pocketsphinx_available())
+
+
+class _Synth:
+    """Features to motion for one take; call it on consecutive batches."""
+
+    def __init__(self, options: ProceduralOptions, seed: int) -> None:
+        self.face = FaceSynth(options, seed)
+        self.body = BodySynth(options, seed)
+
+    def __call__(self, batch: FrameBatch) -> dict[str, np.ndarray]:
+        s, o = batch.self_voice, batch.other_voice
+        face, jaw, eyes = self.face.step(batch.first, s, o, batch.visemes)
+        pose = self.body.step(batch.first, s, o, eyes)
+        pose[:, J["jaw"], 0] = jaw
+        # Yaw about +Y (positive looks to the character's left), then pitch about +X (positive looks down).
+        eye_rot = yxz_axis_angle(np.stack([eyes[:, 0], eyes[:, 1], np.zeros(len(eyes))], axis=1))
+        pose[:, J["left_eye_smplhf"]] = eye_rot
+        pose[:, J["right_eye_smplhf"]] = eye_rot
+        vad = np.stack([s["vad"], o["vad"]], axis=1)
+        state = (vad[:, 0] > 0).astype(np.int8) * int(ConversationState.SPEAKING)
+        state = np.where((vad[:, 1] > 0) & (vad[:, 0] > 0), int(ConversationState.OVERLAP),
+                         np.where(vad[:, 1] > 0, int(ConversationState.LISTENING), state)).astype(np.int8)
+        n = len(batch)
+        return {
+            "first": batch.first,
+            "pose": pose.astype(np.float32),
+            "translation": np.zeros((n, 3), np.float32),
+            "face": face.astype(np.float32),
+            "vad": vad.astype(np.float32),
+            "state": state,
+        }
+
+
+def _frames(arrays: dict[str, np.ndarray]) -> Iterator[MotionFrame]:
+    first = arrays["first"]
+    for j in range(len(arrays["pose"])):
+        yield MotionFrame(
+            time=(first + j) / 30.0, pose=arrays["pose"][j], translation=arrays["translation"][j],
+            face=arrays["face"][j], vad=arrays["vad"][j], state=ConversationState(int(arrays["state"][j])),
+        )

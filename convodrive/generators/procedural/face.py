@@ -147,10 +147,10 @@ class FaceSynth:
             other_onset = ls and not self._prev_other and self._other_quiet > 15
             self_end = self._prev_self and not sp
             # Blinks: more often while speaking than listening, and at turn boundaries.
-            rate = 24.0 if sp else (13.0 if ls else 17.0)
+            rate = 24.0 if sp else (11.0 if ls else 15.0)
             p = rate / 60.0 / 30.0
             self._since_blink += 1
-            if self._since_blink > 9 and (u[j][0] < p or ((self_onset or other_onset or self_end) and u[j][0] < 0.6)):
+            if self._since_blink > 9 and (u[j][0] < p or ((self_onset or other_onset or self_end) and u[j][0] < 0.45)):
                 blinks[j] = 1.0
                 self._since_blink = 0
             # Gaze: at the partner while listening; averted when taking the turn; saccades.

@@ -1,0 +1,39 @@
+"""``convodrive eval behaviour MOTION.npz AUDIO``: behaviour figures of a motion clip as JSON."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from convodrive.audio.source import AudioSource, ChannelMap
+from convodrive.behaviour_eval import behaviour_figures
+from convodrive.errors import UserError
+from convodrive.motion.npz import load_clip
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("eval", help="evaluate generated motion", description="Evaluate generated motion.")
+    sub = p.add_subparsers(dest="eval_command", metavar="WHAT", parser_class=type(p))
+    sub.required = True
+    b = sub.add_parser(
+        "behaviour", help="lip sync, mouth closure, speaking vs listening head motion (JSON)",
+        description="Print behaviour figures of MOTION (a convodrive .npz) against the AUDIO it was made from, as JSON.")
+    b.add_argument("motion", help="motion clip (.npz written by convodrive)")
+    b.add_argument("audio", help="the conversation audio (channel 0 self, 1 partner unless --channels)")
+    b.add_argument("--channels", default=None, help="SELF,OTHER channel numbers of the audio (e.g. 0,1; OTHER may be -)")
+    b.set_defaults(func=run_behaviour)
+
+
+def run_behaviour(args: argparse.Namespace) -> int:
+    try:
+        channels = ChannelMap.parse(args.channels) if args.channels else None
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    clip = load_clip(args.motion)
+    audio = AudioSource(args.audio, channels).read_all()
+    try:
+        figures = behaviour_figures(clip, audio)
+    except UserError as exc:
+        raise UserError(f"{args.motion}: {exc}") from None
+    print(json.dumps({"motion": str(args.motion), "audio": str(args.audio), **figures}, indent=2))
+    return 0
