@@ -180,6 +180,8 @@ def _open_backends(request: DriveRequest, config: RunConfig, session: Session) -
             profile = _profile_for(cls, config)
             options: dict[str, Any] = {}
             if profile is not None:
+                if profile.model_path is not None:
+                    options["model"] = str(profile.model_path)  # the body a simulator loads
                 options.update(profile.backend_options(name))
             options.update(config.backend_options(name))
             options.update(request.backend_options.get(name, {}))

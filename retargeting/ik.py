@@ -51,7 +51,15 @@ class IKSolver:
             raise InputFileError(source, f"ik.root.body: no body {self.cfg.root_body!r} in the model")
         self.anchor_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, t.anchor_body) for t in self.cfg.tasks]
 
-        self.configuration = mink.Configuration(model)
+        # Start from the rest pose moved inside every joint's range (a knee at rest may sit outside
+        # it); otherwise the range limits of frozen joints make the QP infeasible.
+        q_base = model.qpos0.copy()
+        for j in range(model.njnt):
+            if model.jnt_limited[j] and int(model.jnt_type[j]) in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+                adr = model.jnt_qposadr[j]
+                q_base[adr] = np.clip(q_base[adr], *model.jnt_range[j])
+        self.q_base = q_base
+        self.configuration = mink.Configuration(model, q_base)
         self.frame_tasks = [
             mink.FrameTask(t.frame, t.frame_type, position_cost=t.position_cost, orientation_cost=t.orientation_cost, lm_damping=1.0)
             for t in self.cfg.tasks
@@ -93,18 +101,19 @@ class IKSolver:
 
     def solve(self, q_maps: np.ndarray, glob_r: np.ndarray, glob_p: np.ndarray) -> np.ndarray:
         """IK joint values for one frame; ``q_maps`` are all profile joints from the axis maps."""
-        q = self.configuration.q.copy()
+        q = self.q_base.copy()
         q[self.seed_adr] = q_maps[self.seed_cols]
         self.posture.set_target(q.copy())
         if self.q_prev is not None:
             q[self.ik_adr] = self.q_prev
         self.configuration.update(q)
+        first = self.q_prev is None
         goals = self.targets(glob_r, glob_p)
         for task, (pos, rot) in zip(self.frame_tasks, goals):
             task.set_target(mink.SE3.from_rotation_and_translation(mink.SO3.from_matrix(rot), pos))
         tasks = [*self.frame_tasks, self.posture]
         dt = 1.0 / FPS
-        for _ in range(self.cfg.iterations):
+        for _ in range(self.cfg.iterations * (4 if first else 1)):  # a cold start needs more steps
             try:
                 vel = mink.solve_ik(self.configuration, tasks, dt, self.cfg.solver, damping=self.cfg.damping,
                                     limits=self.limits, constraints=self.constraints)

@@ -44,4 +44,4 @@ class MotionLimiter:
         x = np.minimum(np.maximum(self.x + v * dt, self.lower), self.upper)
         self.v = (x - self.x) / dt
         self.x = x
-        return x.copy()
+        return x

@@ -9,7 +9,7 @@ rather than a traceback in the middle of a run. The run config may add top-level
 
 Schema (per joint under ``joints:``)::
 
-    source: TERM            # or  sum: [TERM, ...]
+    source: TERM            # or  sum: [TERM, ...]; neither for a joint listed under ik.joints
     gain: 1.0               # value = offset + direction * gain * sum(weight * map(term))
     offset: 0.0
     direction: 1            # +1 or -1
@@ -244,13 +244,17 @@ def _parse_smoothing(ck: _Checker, value: Any, key: str, base: Smoothing) -> Smo
     return dataclasses.replace(base, **fields)
 
 
-def _parse_joint(ck: _Checker, name: str, value: Any, smoothing: Smoothing) -> JointMap:
+def _parse_joint(ck: _Checker, name: str, value: Any, smoothing: Smoothing, by_ik: bool) -> JointMap:
     key = f"joints.{name}"
     spec = ck.mapping(value, key)
     ck.keys(spec, JOINT_KEYS, key)
-    if ("source" in spec) == ("sum" in spec):
-        ck.fail(key, "needs exactly one of source or sum")
-    if "source" in spec:
+    if "source" in spec and "sum" in spec:
+        ck.fail(key, "needs one of source or sum, not both")
+    if "source" not in spec and "sum" not in spec:
+        if not by_ik:
+            ck.fail(key, "needs a source or a sum (or must be listed under ik.joints)")
+        terms: tuple[Term, ...] = ()  # IK sets it; offset is the seed
+    elif "source" in spec:
         terms = (_parse_term(ck, spec["source"], f"{key}.source"),)
     else:
         if not isinstance(spec["sum"], list) or not spec["sum"]:
@@ -436,7 +440,9 @@ class RobotProfile:
         raw_joints = ck.mapping(data.get("joints"), "joints")
         if not raw_joints:
             ck.fail("joints", "names no joint")
-        joints = {str(n): _parse_joint(ck, str(n), v, smoothing) for n, v in raw_joints.items()}
+        ik_raw = data.get("ik")
+        ik_names = set(ik_raw.get("joints") or []) if isinstance(ik_raw, dict) and isinstance(ik_raw.get("joints"), list) else set()
+        joints = {str(n): _parse_joint(ck, str(n), v, smoothing, str(n) in ik_names) for n, v in raw_joints.items()}
         ik = _parse_ik(ck, data["ik"], joints) if data.get("ik") is not None else None
         model_path = _resolve_model(ck, data.get("model"), path.parent if path else None)
         if ik is not None and model_path is None:

@@ -62,10 +62,11 @@ class Retargeter:
             self.ik.reset()
         raw = self.raw(clip.pose, clip.translation, clip.face)
         dt = 1.0 / clip.fps
-        smoother, limiter = self._new_smoother(), MotionLimiter(self.spec)
+        smoothed = self._new_smoother().batch(raw, dt)
+        limiter = MotionLimiter(self.spec)
         out = np.empty_like(raw)
         for t in range(len(raw)):
-            out[t] = limiter(smoother(raw[t], dt), dt)
+            out[t] = limiter(smoothed[t], dt)
         if self.ik is not None:
             self.ik.reset()
         return out

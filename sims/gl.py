@@ -27,14 +27,28 @@ def _works(platform: str) -> tuple[bool, str]:
     return proc.returncode == 0, lines[-1] if lines else f"exit {proc.returncode}"
 
 
+def _rebind(platform: str) -> None:
+    """mujoco was imported first and bound its default (GLFW, which needs a display): re-import
+    its GL context module now that MUJOCO_GL names a headless platform. Renderers created from
+    here on use it."""
+    import importlib
+
+    try:
+        from mujoco.rendering.classic import gl_context
+
+        importlib.reload(gl_context)
+    except Exception:  # keep whatever mujoco had; a render failure will say why
+        pass
+
+
 def select_gl() -> tuple[str | None, str]:
     """(platform or None, reason). Sets MUJOCO_GL and PYOPENGL_PLATFORM when it can still matter."""
     global _choice
     if _choice is not None:
         return _choice
-    if "mujoco" in sys.modules:
-        current = os.environ.get("MUJOCO_GL") or None
-        _choice = (current, "mujoco was imported before GL selection; using its choice")
+    late = "mujoco" in sys.modules
+    if late and os.environ.get("MUJOCO_GL", "").lower() in ("egl", "osmesa", "glx", "glfw"):
+        _choice = (os.environ["MUJOCO_GL"], "chosen before mujoco was imported")
         return _choice
     explicit = os.environ.get("MUJOCO_GL") or os.environ.get("PYOPENGL_PLATFORM")
     if explicit:
@@ -48,7 +62,9 @@ def select_gl() -> tuple[str | None, str]:
         ok, why = _works(platform)
         if ok:
             os.environ["MUJOCO_GL"] = platform
-            os.environ["PYOPENGL_PLATFORM"] = platform
+            os.environ.setdefault("PYOPENGL_PLATFORM", platform)
+            if late:
+                _rebind(platform)
             _choice = (platform, "probed")
             return _choice
         failures.append(f"{platform}: {why}")

@@ -55,7 +55,7 @@ def hinge_qpos_addresses(model: mujoco.MjModel, names: tuple[str, ...] | list[st
         jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
         if jid < 0:
             raise InputFileError(source, f"joints.{name}: no joint of that name in the model")
-        if model.jnt_type[jid] not in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE):
+        if int(model.jnt_type[jid]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
             raise InputFileError(source, f"joints.{name}: model joint is not a hinge or slide")
         out.append(int(model.jnt_qposadr[jid]))
     return out

@@ -1,0 +1,394 @@
+"""The ``mujoco`` backend: target frames drive a MuJoCo model's position actuators, filmed offscreen.
+
+Each frame sets the actuator targets and advances physics by exactly 1/30 s of simulated time at
+the model's own timestep, so simulation stays in lock step with the 30 fps clock (offline runs go
+as fast as the CPU allows; real-time runs are paced by the scheduler). Tracking error, commanded
+versus simulated joint angle, is accumulated per joint and reported in degrees.
+
+Any MJCF works: a model's free root joint is removed (welding it in its chair), and a joint the
+profile drives without a position actuator gets one, its gain set from the joint's effective
+inertia so that every joint tracks at about the same natural frequency. Rendering is optional
+equipment: if no headless GL works, or the renderer fails mid-run, physics and the tracking
+report carry on and the report says why there is no video.
+
+Options (``backends: {mujoco: {...}}`` in the run config):
+  model      MJCF path or a name in convodrive.sims; default: the profile's ``model``
+  profile    robot profile name or YAML path, used to find the model when ``model`` is not given
+  video      write ``<out_dir>/mujoco.mp4`` (default true)
+  width, height   video size (default 640x480); camera: a camera name, or "free" for
+             one framing the model from the front (default "front", else the model's first camera)
+  msaa       multisample anti-aliasing samples (default 0; 4 is smoother and ~2.5x slower on CPU GL)
+  shadows    render shadows and reflections (default false: ten times slower on software GL)
+  viewer     open a passive viewer when a display exists (default false)
+  weld_root  remove free joints (default true); gravcomp: compensate gravity on all bodies (default false)
+  omega      natural frequency, rad/s, of actuators the backend adds (default 60)
+  hold_unmapped   add actuators holding unmapped hinge joints at their rest angle (default true)
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from convodrive.backends.base import Backend, Session
+from convodrive.errors import InputFileError, UserError
+from convodrive.targets import TargetFrame, TargetSpec
+
+NECK_HEAD = ("neck", "head")
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text[:300]}"
+
+
+def _resolve_model(options: dict[str, Any], spec: TargetSpec, default_profile: str) -> Path:
+    import importlib.resources
+
+    from convodrive.retargeting import load_profile
+
+    model = options.get("model")
+    if model:
+        path = Path(str(model)).expanduser()
+        if path.is_file():
+            return path
+        bundled = Path(str(importlib.resources.files("convodrive.sims").joinpath(str(model))))
+        if bundled.is_file():
+            return bundled
+        raise UserError(f"mujoco backend option model: {model!r} is neither a file nor a model in convodrive.sims")
+    for candidate in (options.get("profile"), spec.name if spec.names else None, default_profile):
+        if not candidate:
+            continue
+        try:
+            profile = load_profile(candidate)
+        except UserError:
+            if candidate == options.get("profile"):
+                raise
+            continue
+        if profile.model_path is not None and (not spec.names or set(spec.names) <= set(profile.spec.names)):
+            return profile.model_path
+    raise UserError(f"mujoco backend: no MJCF for target {spec.name!r}; give options model: or profile:")
+
+
+class MujocoBackend(Backend):
+    name = "mujoco"
+    description = "MuJoCo physics: position-controlled humanoid or servo-head twin, offscreen mp4, tracking report"
+    realtime = False
+    default_profile = "convo_humanoid"
+
+    def __init__(self, options: dict[str, Any] | None = None) -> None:
+        super().__init__(options)
+        self.width = int(self.options.get("width", 640))
+        self.height = int(self.options.get("height", 480))
+        if self.width <= 0 or self.height <= 0 or self.width % 2 or self.height % 2:
+            raise UserError(f"mujoco backend: width and height must be positive even numbers, got {self.width}x{self.height}")
+        self.model: Any = None
+        self.data: Any = None
+        self.model_path: Path | None = None
+        self.frames = 0
+        self.refused = 0
+        self.physics_seconds = 0.0
+        self.render_seconds = 0.0
+        self.video_path: Path | None = None
+        self.video_error: str | None = None
+        self.gl: str | None = None
+        self.added_actuators: list[str] = []
+        self._writer: Any = None
+        self._renderer: Any = None
+        self._viewer: Any = None
+        self._camera: Any = None
+        self._gl_thread: Any = None
+        self.viewer_error: str | None = None
+
+    # -- setup -----------------------------------------------------------------------------
+    def open(self, spec: TargetSpec, session: Session) -> None:
+        super().open(spec, session)
+        from convodrive.sims.loader import compile_spec, fix_root, load_spec
+        from convodrive.sims.gl import select_gl
+
+        import mujoco
+
+        self.gl, gl_reason = select_gl()
+        self.model_path = _resolve_model(self.options, spec, self.default_profile or "")
+        mspec = load_spec(self.model_path)
+        if self.options.get("weld_root", True):
+            fix_root(mspec)
+        if self.options.get("gravcomp", False):
+            for body in mspec.bodies:
+                body.gravcomp = 1.0
+        self._add_actuators(mspec, compile_spec(mspec, self.model_path))
+        self.model = compile_spec(mspec, self.model_path)
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+
+        self.qadr = np.zeros(len(spec.names), dtype=int)
+        self.act = np.zeros(len(spec.names), dtype=int)
+        for i, name in enumerate(spec.names):
+            jid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
+            if jid < 0:
+                raise InputFileError(self.model_path, f"has no joint {name!r}, which target {spec.name!r} drives")
+            self.qadr[i] = m.jnt_qposadr[jid]
+            self.act[i] = self._position_actuator(jid)
+        self.steps_per_frame = max(1, round((1.0 / session.fps) / m.opt.timestep))
+        self.sq_err = np.zeros(len(spec.names))
+        self.max_err = np.zeros(len(spec.names))
+        self.frames = 0
+
+        if self.options.get("video", True):
+            if self.gl is None:
+                self.video_error = gl_reason
+            else:
+                self._open_video(session)
+        if self.options.get("viewer", False) and not os.environ.get("DISPLAY"):
+            self.viewer_error = "no display (DISPLAY is not set)"
+        elif self.options.get("viewer", False):
+            try:
+                import mujoco.viewer
+
+                self._viewer = mujoco.viewer.launch_passive(m, self.data)
+            except Exception as exc:  # a viewer is a convenience, never a reason to fail the run
+                self._viewer = None
+                self.viewer_error = _one_line(exc)
+
+    def _position_actuator(self, jid: int) -> int:
+        import mujoco
+
+        m = self.model
+        for a in range(m.nu):
+            if (int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT) and m.actuator_trnid[a, 0] == jid
+                    and int(m.actuator_biastype[a]) == int(mujoco.mjtBias.mjBIAS_AFFINE) and m.actuator_biasprm[a, 1] < 0):
+                return a
+        raise InputFileError(self.model_path, f"joint {m.joint(jid).name!r} has no position actuator")
+
+    def _add_actuators(self, mspec: Any, model: Any) -> None:
+        """Give every driven (and, if asked, every other) hinge a position actuator; drop motors on them."""
+        import mujoco
+
+        def is_position(act: Any) -> bool:
+            return act.biastype == mujoco.mjtBias.mjBIAS_AFFINE and act.biasprm[1] < 0
+
+        targets = set(self.spec.names)
+        if self.options.get("hold_unmapped", True):
+            # Joints coupled by an equality constraint (a mirrored eye) follow it, not a servo.
+            coupled = {n for e in mspec.equalities if e.type == mujoco.mjtEq.mjEQ_JOINT for n in (e.name1, e.name2)}
+            targets |= {model.joint(j).name for j in range(model.njnt)
+                        if int(model.jnt_type[j]) in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+                        and model.joint(j).name not in coupled}
+        has_position = {a.target for a in mspec.actuators if a.trntype == mujoco.mjtTrn.mjTRN_JOINT and is_position(a)}
+        needed = [n for n in targets if n not in has_position and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) >= 0]
+        if not needed:
+            return
+        for act in list(mspec.actuators):
+            if act.trntype == mujoco.mjtTrn.mjTRN_JOINT and act.target in needed:
+                mspec.delete(act)
+        data = mujoco.MjData(model)
+        mujoco.mj_forward(model, data)
+        full = np.zeros((model.nv, model.nv))
+        mujoco.mj_fullM(model, data, full)
+        omega = float(self.options.get("omega", 60.0))
+        for name in sorted(needed):
+            jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+            inertia = full[model.jnt_dofadr[jid], model.jnt_dofadr[jid]]
+            act = mspec.add_actuator()
+            act.name = f"convodrive_{name}"
+            act.trntype = mujoco.mjtTrn.mjTRN_JOINT
+            act.target = name
+            act.set_to_position(kp=inertia * omega**2, kv=2.0 * inertia * omega)
+            if model.jnt_limited[jid]:
+                act.ctrllimited = True
+                act.ctrlrange = model.jnt_range[jid]
+            self.added_actuators.append(name)
+        # Stiff servos on light links need the velocity terms integrated implicitly.
+        mspec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+
+    def _on_gl_thread(self, fn: Any, *args: Any) -> Any:
+        """Run ``fn`` on the one thread that owns the GL context.
+
+        A GL context is current in one thread at a time, and the scheduler opens, feeds and closes
+        a backend from different threads; so every GL call goes through this single worker.
+        """
+        if self._gl_thread is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._gl_thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mujoco-gl")
+        return self._gl_thread.submit(fn, *args).result()
+
+    def _make_renderer(self) -> Any:
+        import mujoco
+
+        renderer = mujoco.Renderer(self.model, self.height, self.width)
+        if not self.options.get("shadows", False):  # software GL: shadows cost ~10x the frame time
+            for flag in (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION):
+                renderer.scene.flags[flag] = 0
+        return renderer
+
+    def _render(self) -> np.ndarray:
+        self._renderer.update_scene(self.data, camera=self._camera)
+        return self._renderer.render()
+
+    def _open_video(self, session: Session) -> None:
+        import mujoco
+
+        from convodrive.video import VideoWriter
+
+        try:
+            m = self.model
+            m.vis.global_.offwidth = max(m.vis.global_.offwidth, self.width)
+            m.vis.global_.offheight = max(m.vis.global_.offheight, self.height)
+            m.vis.quality.offsamples = int(self.options.get("msaa", 0))  # 4x MSAA costs ~2.5x on software GL
+            self._renderer = self._on_gl_thread(self._make_renderer)
+            cam = self.options.get("camera")
+            if cam == "free":
+                cam = None
+            elif cam is None and m.ncam:
+                cam = "front" if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, "front") >= 0 else m.camera(0).name
+            if cam is not None:
+                if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, str(cam)) < 0:
+                    raise UserError(f"mujoco backend option camera: no camera {cam!r} in {self.model_path}")
+                self._camera = str(cam)
+            else:
+                self._camera = self._free_camera()
+            self.video_path = Path(session.out_dir) / "mujoco.mp4"
+            self._writer = VideoWriter(self.video_path, self.width, self.height, fps=session.fps, audio_path=session.audio_path)
+        except UserError:
+            raise
+        except Exception as exc:
+            self._drop_video(f"offscreen rendering unavailable ({self.gl}): {_one_line(exc)}")
+
+    def _free_camera(self) -> Any:
+        """A camera looking at the model's upper half from the front (+X), for models with none."""
+        import mujoco
+
+        cam = mujoco.MjvCamera()
+        mujoco.mj_forward(self.model, self.data)
+        cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+        points = self.data.xpos[1:] if self.model.nbody > 1 else self.data.xpos  # bodies, not the floor
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        cam.lookat[:] = (lo + hi) / 2.0
+        cam.distance = 1.8 * max(float(np.max(hi - lo)), 0.2)
+        cam.azimuth, cam.elevation = 180.0, -10.0
+        return cam
+
+    def _drop_video(self, reason: str) -> None:
+        self.video_error = reason
+        if self._writer is not None:
+            self._writer.abort()
+        self._writer = None
+        self.video_path = None
+        self._close_renderer()
+
+    def _close_renderer(self) -> None:
+        if self._renderer is not None:
+            try:
+                self._on_gl_thread(self._renderer.close)
+            except Exception:
+                pass
+            self._renderer = None
+        if self._gl_thread is not None:
+            self._gl_thread.shutdown(wait=True)
+            self._gl_thread = None
+
+    # -- per frame ------------------------------------------------------------------------
+    def send(self, frame: TargetFrame) -> None:
+        import mujoco
+
+        values = np.asarray(frame.values, np.float64)
+        if values.shape != (len(self.spec.names),) or not np.all(np.isfinite(values)) or not self.spec.within_limits(values, 1e-6):
+            self.refused += 1  # second guard: the retargeter enforces limits, a bad frame is not applied
+            values = None
+        m, d = self.model, self.data
+        t0 = time.perf_counter()
+        if values is not None:
+            if self.frames == 0:
+                d.qpos[self.qadr] = values  # start where the motion starts, not at the model's rest pose
+                d.qvel[:] = 0.0
+                mujoco.mj_forward(m, d)
+            d.ctrl[self.act] = values
+        for _ in range(self.steps_per_frame):
+            mujoco.mj_step(m, d)
+        self.physics_seconds += time.perf_counter() - t0
+        if values is not None:
+            err = d.qpos[self.qadr] - values
+            self.sq_err += err * err
+            self.max_err = np.maximum(self.max_err, np.abs(err))
+            self.frames += 1
+        if self._writer is not None:
+            t1 = time.perf_counter()
+            try:
+                self._writer.append(self._on_gl_thread(self._render))
+            except Exception as exc:
+                self._drop_video(f"rendering failed at frame {frame.index}: {_one_line(exc)}")
+            self.render_seconds += time.perf_counter() - t1
+        if self._viewer is not None:
+            try:
+                if self._viewer.is_running():
+                    self._viewer.sync()
+            except Exception:
+                self._viewer = None
+
+    def close(self) -> None:
+        if self._writer is not None:
+            try:
+                self._writer.close()
+            except Exception as exc:
+                self._drop_video(f"video could not be finished: {_one_line(exc)}")
+            self._writer = None
+        self._close_renderer()
+        if self._viewer is not None:
+            try:
+                self._viewer.close()
+            except Exception:
+                pass
+            self._viewer = None
+
+    # -- reporting ------------------------------------------------------------------------
+    def tracking(self) -> dict[str, dict[str, float]]:
+        """Per joint: RMS and max of commanded minus simulated angle, degrees (rad joints only)."""
+        n = max(self.frames, 1)
+        out = {}
+        for i, name in enumerate(self.spec.names):
+            scale = math.degrees(1.0) if self.spec.units[i] == "rad" else 1.0
+            out[name] = {"rms": float(np.sqrt(self.sq_err[i] / n) * scale), "max": float(self.max_err[i] * scale)}
+        return out
+
+    def _summary(self) -> dict[str, Any]:
+        track = self.tracking()
+        neck_head = [v["rms"] for k, v in track.items() if k.startswith(NECK_HEAD)]
+        worst = max(track.items(), key=lambda kv: kv[1]["rms"]) if track else (None, {"rms": 0.0})
+        sim_time = self.frames * self.steps_per_frame * (self.model.opt.timestep if self.model is not None else 0.0)
+        return {
+            "frames": self.frames,
+            "refused_frames": self.refused,
+            "neck_head_rms_deg": max(neck_head) if neck_head else None,
+            "worst_joint": worst[0],
+            "worst_rms_deg": worst[1]["rms"],
+            "physics_x_realtime": sim_time / self.physics_seconds if self.physics_seconds > 0 else None,
+        }
+
+    def health(self) -> dict[str, Any]:
+        summary = self._summary()
+        degraded = self.refused > 0 or (self.options.get("video", True) and self.video_error is not None)
+        return {"status": "degraded" if degraded else "ok", **summary, "video_error": self.video_error}
+
+    def report(self) -> dict[str, Any]:
+        return {
+            "model": str(self.model_path) if self.model_path else None,
+            "timestep": float(self.model.opt.timestep) if self.model is not None else None,
+            "steps_per_frame": getattr(self, "steps_per_frame", None),
+            "gl": self.gl,
+            "video": str(self.video_path) if self.video_path else None,
+            "video_error": self.video_error,
+            "render_fps": self.frames / self.render_seconds if self.render_seconds > 0 else None,
+            "added_actuators": self.added_actuators,
+            "viewer_error": self.viewer_error,
+            **self._summary(),
+            "tracking_deg": self.tracking(),
+        }
+
+    def outputs(self) -> list[Path]:
+        return [self.video_path] if self.video_path is not None and self.video_path.exists() else []
