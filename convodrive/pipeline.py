@@ -98,7 +98,11 @@ class DriveResult:
     outputs: list[Path]
 
 
-def drive(request: DriveRequest, on_frame: Callable[[int, int], None] | None = None) -> DriveResult:
+def drive(
+    request: DriveRequest,
+    on_frame: Callable[[int, int], None] | None = None,
+    on_start: Callable[[], None] | None = None,
+) -> DriveResult:
     """Run one session end to end and write its report. ``UserError`` for any user mistake."""
     if request.samples < 1:
         raise UserError(f"--samples must be at least 1, got {request.samples}")
@@ -141,6 +145,7 @@ def drive(request: DriveRequest, on_frame: Callable[[int, int], None] | None = N
         expected_frames=session.num_frames,
         audio_seconds=source.duration,
         on_frame=frame_done,
+        on_start=on_start,
     )
     result = scheduler.run()
     outputs = [p for r in routes for p in _safe_outputs(r.backend)]

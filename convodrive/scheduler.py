@@ -255,6 +255,7 @@ class Scheduler:
         audio_seconds: float | None = None,
         buffer_frames: int = 30,
         on_frame: Callable[[int], None] | None = None,
+        on_start: Callable[[], None] | None = None,
         start_delay: float = 0.05,
     ) -> None:
         self.routes = list(routes)
@@ -263,6 +264,7 @@ class Scheduler:
         self.expected_frames = expected_frames
         self.audio_seconds = audio_seconds
         self.on_frame = on_frame
+        self.on_start = on_start
         self.start_delay = start_delay
         self._producer = Producer(source, buffer_frames)
         self._stop = threading.Event()
@@ -336,6 +338,8 @@ class Scheduler:
                 break
             if index == 0:  # the clock starts once the first frame exists
                 self._t0 = time.monotonic() + self.start_delay
+                if self.on_start is not None:
+                    self.on_start()
             if self.realtime:
                 deadline = self._t0 + index * period
                 now = time.monotonic()

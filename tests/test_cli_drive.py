@@ -115,7 +115,10 @@ def test_signal_ends_the_run_with_complete_outputs(tmp_path: Path, sig: int) -> 
         [sys.executable, "-m", "convodrive.cli.main", "drive", str(path), "--realtime", "--out", str(out_dir)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
-    time.sleep(3.0)
+    assert proc.stderr is not None
+    started = proc.stderr.readline()  # printed once the 30 fps clock runs: signals now hit the run
+    assert "real time" in started, started
+    time.sleep(1.0)
     proc.send_signal(sig)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, stderr

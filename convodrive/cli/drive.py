@@ -59,8 +59,13 @@ def run(args: argparse.Namespace) -> int:
         generator_options=gen_options,
         backend_options=backend_options,
     )
+    def started() -> None:
+        if request.realtime:
+            sys.stderr.write("convodrive: running in real time at 30 fps (Ctrl-C stops)\n")
+            sys.stderr.flush()
+
     with frame_progress("driving", enabled=not request.realtime) as progress:
-        result = drive(request, on_frame=progress)
+        result = drive(request, on_frame=progress, on_start=started)
     print_result(result)
     return 130 if result.report["interrupted"] else 0
 
