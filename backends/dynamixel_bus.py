@@ -21,13 +21,10 @@ import dynamixel_sdk as sdk
 import serial
 
 from convodrive.backends.dynamixel_table import ControlTable, Model, Register, decode, encode
+from convodrive.backends.servo_base import PortLost, open_error
 from convodrive.errors import UserError
 
 PKT_ID, PKT_ERROR, PKT_PARAMETER0 = 4, 8, 9  # status packet offsets (PARAMETER0 after the error byte)
-
-
-class PortLost(Exception):
-    """The serial port failed underneath us (unplugged, closed); the bus must reconnect."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,6 +48,7 @@ class ServoHealth:
     timeouts: int = 0
     corrupt: int = 0
     retries: int = 0
+    refused: int = 0
     consecutive_failures: int = 0
     lost_events: int = 0
     backoff_until: float = 0.0
@@ -71,7 +69,7 @@ class ServoHealth:
         return {
             "id": self.id, "status": status,
             "last_seen_s": None if self.last_seen is None else round(now - self.last_seen, 3),
-            "timeouts": self.timeouts, "corrupt": self.corrupt, "retries": self.retries,
+            "timeouts": self.timeouts, "corrupt": self.corrupt, "retries": self.retries, "refused": self.refused,
             "lost_events": self.lost_events, "hardware_error": self.hardware_error,
             "faults": list(self.faults), "faults_seen": sorted(self.faults_seen),
             "position": self.position, "temperature_c": self.temperature, "voltage_v": self.voltage,
@@ -118,8 +116,7 @@ class DynamixelBus:
             try:
                 ok = port.openPort()
             except (serial.SerialException, OSError) as exc:
-                reason = getattr(exc, "strerror", None) or str(exc).split(":")[-1].strip() or "cannot open"
-                raise UserError(f"{self.port_name}: cannot open serial port ({reason})") from None
+                raise open_error(self.port_name, exc) from None
             if not ok:
                 raise UserError(f"{self.port_name}: baud rate {self.baudrate} is not supported")
             self.port = port
@@ -172,17 +169,21 @@ class DynamixelBus:
         motor = self.motors[name]
         reg = motor.table.reg(register)
         fns = {1: self.packets.read1ByteTxRx, 2: self.packets.read2ByteTxRx, 4: self.packets.read4ByteTxRx}
-        value = self._txrx(name, lambda p: fns[reg.size](p, motor.id, reg.address))
-        return None if value is None else decode(encode_unsigned(value, reg), reg)
+        reply = self._txrx(name, lambda p: fns[reg.size](p, motor.id, reg.address))
+        if reply is None or reply[1] & 0x7F:
+            return None
+        return decode(encode_unsigned(reply[0], reg), reg)
 
     def write(self, register: str, name: str, value: int) -> bool:
+        """True when the servo confirmed the write (a status packet without an error number)."""
         motor = self.motors[name]
         reg = motor.table.reg(register)
         data = encode(int(value), reg)
-        return self._txrx(name, lambda p: (None, *self.packets.writeTxRx(p, motor.id, reg.address, reg.size, data))) is not None
+        reply = self._txrx(name, lambda p: (None, *self.packets.writeTxRx(p, motor.id, reg.address, reg.size, data)))
+        return reply is not None and not reply[1] & 0x7F
 
-    def _txrx(self, name: str, call) -> Any:  # type: ignore[no-untyped-def]
-        """One request with status, retried with a short back-off; None after the last failure."""
+    def _txrx(self, name: str, call) -> tuple[Any, int] | None:  # type: ignore[no-untyped-def]
+        """One request with status, retried with a short back-off: (value, error byte) or None."""
         health = self.health[name]
         with self.lock:
             for attempt in range(self.retries + 1):
@@ -192,7 +193,9 @@ class DynamixelBus:
                 value, result, error = self._guard(call, self._port())
                 if result == sdk.COMM_SUCCESS:
                     self._seen(health, error)
-                    return 0 if value is None else value
+                    if error & 0x7F:
+                        health.refused += 1  # the servo answered with an error number
+                    return value, error
                 self._count(health, result)
             self._failed(health)
             return None
@@ -228,7 +231,8 @@ class DynamixelBus:
                 data = raw.get(name)
                 if data is None:  # retry alone, with back-off between attempts
                     motor = self.motors[name]
-                    data = self._txrx(name, lambda p, m=motor: _read_span(self.packets, p, m.id, start, length))
+                    reply = self._txrx(name, lambda p, m=motor: _read_span(self.packets, p, m.id, start, length))
+                    data = reply[0] if reply is not None and not reply[1] & 0x7F else None
                 if data is not None:
                     out[name] = {r: decode(data[reg.address - start:], reg) for r, reg in regs.items()}
         return out

@@ -143,10 +143,19 @@ class EmulatedServo:
 
 
 @dataclasses.dataclass
-class GoalWrite:
+class LoggedWrite:
+    """One accepted register write, as the servo saw it (emulator clock)."""
+
     time: float
     servo_id: int
-    tick: int
+    value: int
+    inst: int = dp.WRITE
+    """The instruction that carried it (WRITE, SYNC_WRITE, BULK_WRITE, ACTION)."""
+
+    @property
+    def tick(self) -> int:
+        """For goal positions: the goal in ticks."""
+        return self.value
 
 
 class DynamixelEmulator:
@@ -158,8 +167,8 @@ class DynamixelEmulator:
         self.clock = clock
         self.baudrate = baudrate
         self.servos: dict[int, EmulatedServo] = {i: EmulatedServo(i, spec, clock) for i in ids}
-        self.goal_log: list[GoalWrite] = []
-        self.torque_log: list[GoalWrite] = []  # (time, id, Torque_Enable value) for every accepted write
+        self.goal_log: list[LoggedWrite] = []
+        self.torque_log: list[LoggedWrite] = []  # every accepted Torque_Enable write
         self.counters = {"packets": 0, "replies": 0, "dropped": 0, "corrupted": 0, "crc_errors_in": 0, "refused_goals": 0}
         self._lock = threading.RLock()
         self._buffer = bytearray()
@@ -191,9 +200,10 @@ class DynamixelEmulator:
     def servo(self, servo_id: int) -> EmulatedServo:
         return self.servos[servo_id]
 
-    def goals(self, servo_id: int) -> list[GoalWrite]:
+    def goals(self, servo_id: int, inst: int | None = None) -> list[LoggedWrite]:
+        """Goal positions written to one servo, optionally only those a given instruction carried."""
         with self._lock:
-            return [g for g in self.goal_log if g.servo_id == servo_id]
+            return [g for g in self.goal_log if g.servo_id == servo_id and inst in (None, g.inst)]
 
     # ------------------------------------------------------------- faults
     def drop_replies(self, count: int = 1, servo_id: int | None = None) -> None:
@@ -242,21 +252,29 @@ class DynamixelEmulator:
                 self.counters["packets"] += 1
                 request_bytes += 10 + len(packet.params)
                 replies.extend(self._handle(packet))
-            out = [self._mangle(sid, raw) for sid, raw in replies]
-        wire = request_bytes
-        for raw in out:
+            out = [(self._delay_us(sid), self._mangle(sid, raw)) for sid, raw in replies]
+        due = arrived + self._wire_s(request_bytes)
+        for delay_us, raw in out:
+            due += delay_us * 1e-6  # Return_Delay_Time: the servo waits before it answers
             if raw is None:
                 continue
-            wire += len(raw)
-            self._wait_wire(arrived, wire)
+            due += self._wire_s(len(raw))
+            self._wait_until(due)
             self._server.send(raw)
             self.counters["replies"] += 1
 
-    def _wait_wire(self, since: float, nbytes: int) -> None:
-        """Hold a reply until it would have finished on a real bus (10 bits per byte)."""
+    def _delay_us(self, servo_id: int) -> float:
+        servo = self.servos.get(servo_id)
+        return 2.0 * servo.get("Return_Delay_Time") if servo is not None else 0.0
+
+    def _wire_s(self, nbytes: int) -> float:
+        """Time ``nbytes`` take on the emulated wire (10 bits per byte; 0 if not emulated)."""
+        return nbytes * 10.0 / self.baudrate if self.baudrate else 0.0
+
+    def _wait_until(self, due: float) -> None:
+        """Hold a reply until it would have finished on a real bus."""
         if not self.baudrate:
             return
-        due = since + nbytes * 10.0 / self.baudrate
         delay = due - time.perf_counter()
         if delay > 0:
             time.sleep(delay)
@@ -311,13 +329,13 @@ class DynamixelEmulator:
         if p.inst == dp.SYNC_WRITE and len(params) >= 4:
             address, length = _u16(params, 0), _u16(params, 2)
             for k in range(4, len(params) - length, length + 1):
-                self._write_logged(params[k], address, params[k + 1: k + 1 + length])
+                self._write_logged(params[k], address, params[k + 1: k + 1 + length], dp.SYNC_WRITE)
             return []
         if p.inst == dp.BULK_WRITE:
             k = 0
             while k + 5 <= len(params):
                 sid, address, length = params[k], _u16(params, k + 1), _u16(params, k + 3)
-                self._write_logged(sid, address, params[k + 5: k + 5 + length])
+                self._write_logged(sid, address, params[k + 5: k + 5 + length], dp.BULK_WRITE)
                 k += 5 + length
             return []
         if p.inst == dp.SYNC_READ and len(params) >= 4:
@@ -351,7 +369,7 @@ class DynamixelEmulator:
             return self._status(s, 0)
         if inst == dp.ACTION:
             if s._pending:
-                self._write_logged(s.id, *s._pending)
+                self._write_logged(s.id, *s._pending, dp.ACTION)
                 s._pending = None
             return self._status(s, 0)
         if inst == dp.REBOOT:
@@ -362,7 +380,7 @@ class DynamixelEmulator:
             return self._status(s, 0)
         return self._status(s, 0)  # CLEAR: nothing to clear in position mode
 
-    def _write_logged(self, servo_id: int, address: int, data: bytes) -> int:
+    def _write_logged(self, servo_id: int, address: int, data: bytes, inst: int = dp.WRITE) -> int:
         servo = self.servos.get(servo_id)
         if servo is None or not servo.alive:
             return dp.ERR_RESULT_FAIL
@@ -371,7 +389,7 @@ class DynamixelEmulator:
             reg = servo.table.reg(name)
             if reg.address >= address and reg.address + reg.size <= address + len(data):
                 if not error:
-                    log.append(GoalWrite(self.clock(), servo_id, servo.get(name)))
+                    log.append(LoggedWrite(self.clock(), servo_id, servo.get(name), inst))
                 elif name == "Goal_Position":
                     self.counters["refused_goals"] += 1
         return error
@@ -408,15 +426,19 @@ class Fault:
             emu.hardware_error(int(self.arg or 1), self.kind)
 
 
-def parse_fault(text: str) -> Fault:
+def split_fault(text: str) -> Fault:
+    """Parse the ``KIND[:ARG][@AT][+FOR]`` grammar without checking the kind (shared with the Maestro)."""
     try:
-        rest, duration = (text.split("+", 1) + [None])[:2] if "+" in text else (text, None)
-        rest, at = rest.split("@", 1) if "@" in rest else (rest, "0")
-        kind, arg = rest.split(":", 1) if ":" in rest else (rest, None)
-        fault = Fault(kind, float(arg) if arg is not None else None, float(at),
-                      float(duration) if duration is not None else None)
+        rest, _, duration = text.partition("+")
+        rest, _, at = rest.partition("@")
+        kind, _, arg = rest.partition(":")
+        return Fault(kind, float(arg) if arg else None, float(at or 0), float(duration) if duration else None)
     except ValueError:
         raise UserError(f"--fault {text!r}: expected KIND[:ARG][@SECONDS][+SECONDS]") from None
+
+
+def parse_fault(text: str) -> Fault:
+    fault = split_fault(text)
     if fault.kind not in FAULT_KINDS:
         raise UserError(f"--fault {text!r}: unknown kind {fault.kind!r} (known: {', '.join(FAULT_KINDS)})")
     return fault

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -22,7 +23,8 @@ FPS = 30
 
 def options(port: str, **extra: object) -> dict:
     opts = PROFILE.backend_options("dynamixel")
-    opts.update(port=port, ease_s=0.3, read_rate=20, latency_ms=4, **extra)
+    # 40 ms latency budget: this machine is shared and busy; fault tests use the SDK's 16 ms.
+    opts.update({"port": port, "ease_s": 0.3, "read_rate": 20, "latency_ms": 40, **extra})
     return opts
 
 
@@ -78,7 +80,7 @@ def test_trajectory_reaches_the_wire_within_one_tick() -> None:
     assert np.all(np.ptp(stamps, axis=1) < 0.005)
     assert report["status"] == "ok" and report["faults"] == [] and report["frames"] == len(frames), report["faults"]
     assert report["torque_off"] and all(not emu.servo(i).torque for i in range(1, 8))
-    assert report["servos"]["neck_pan"]["temperature_c"] == 30
+    assert report["servos"]["neck_pan"]["temperature_c"] == 30 and report["bus_ms"]["write"]["n"] >= len(frames)
 
 
 def test_close_eases_to_neutral_then_torque_off() -> None:
@@ -92,7 +94,7 @@ def test_close_eases_to_neutral_then_torque_off() -> None:
         backend.close()
         took = time.monotonic() - t0
         tail = [g for g in emu.goal_log[before:] if g.servo_id == 1]
-        torque = [t for t in emu.torque_log if t.tick == 0 and t.time >= t0]
+        torque = [t for t in emu.torque_log if t.value == 0 and t.time >= t0]
     neutral = expected_ticks(SPEC.neutral)[1]
     start = expected_ticks(away)[1]
     ticks = [g.tick for g in tail]
@@ -131,7 +133,7 @@ def test_each_fault_degrades_completes_and_ends_torque_off(fault: str, tmp_path:
     link = str(tmp_path / "ttyDXL")
     frames = trajectory(30)
     with DynamixelEmulator(range(1, 8), "xl330", link=link) as emu:
-        backend = DynamixelBackend(options(emu.port))
+        backend = DynamixelBackend(options(emu.port, latency_ms=16))
         backend.open(SPEC, session())
 
         def inject(i: int) -> None:
@@ -189,6 +191,7 @@ def test_refuses_frames_outside_limits() -> None:
         nan = SPEC.neutral.copy()
         nan[3] = np.nan
         backend.send(TargetFrame(1, 1 / FPS, nan, ()))
+        time.sleep(0.1)
         refused_writes = len(emu.goal_log) - n
         backend.close()
         report = backend.report()
@@ -206,3 +209,28 @@ def test_user_errors_are_one_line(tmp_path: Path) -> None:
             DynamixelBackend(options(emu.port)).open(SPEC, session())
     with pytest.raises(UserError, match="port"):
         DynamixelBackend({}).open(SPEC, session())
+
+
+def test_xl320_table_drives_two_byte_goals() -> None:
+    """The XL-320 (own control table: 2-byte goal at 30, 1024 ticks over 300 degrees)."""
+    names = ("neck_pan", "neck_tilt")
+    joints = {"neck_pan": {"id": 1}, "neck_tilt": {"id": 2, "direction": -1}}
+    with start_emulated_head(ids=[1, 2], model="xl320") as emu:
+        backend = DynamixelBackend({"port": emu.port, "model": "xl320", "joints": joints, "ease_s": 0.2})
+        free = dataclasses.replace(SPEC, max_velocity=np.full(7, np.inf), max_acceleration=np.full(7, np.inf))
+        backend.open(free, session())
+        values = SPEC.neutral.copy()
+        values[SPEC.index["neck_pan"]], values[SPEC.index["neck_tilt"]] = 0.5, 0.3
+        n = len(emu.goal_log)
+        backend.send(TargetFrame(0, 0.0, values, ()))
+        deadline = time.monotonic() + 2.0
+        while len(emu.goal_log) < n + 2 and time.monotonic() < deadline:
+            time.sleep(0.005)  # SYNC_WRITE has no reply: wait for the emulator to take it
+        goals = {g.servo_id: g.tick for g in emu.goal_log[n: n + 2]}
+        limits = (emu.servo(1).get("CW_Angle_Limit"), emu.servo(1).get("CCW_Angle_Limit"))
+        backend.close()
+        report = backend.report()
+    per_rad = 1024 / np.radians(300)
+    assert goals == {1: round(512 + 0.5 * per_rad), 2: round(512 - 0.3 * per_rad)}
+    assert limits == (int(np.floor(512 - 1.4 * per_rad)), int(np.ceil(512 + 1.4 * per_rad)))
+    assert report["status"] == "ok" and report["torque_off"] and set(report["servos"]) == set(names)

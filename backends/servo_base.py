@@ -1,0 +1,312 @@
+"""What every servo-head backend shares: the safety loop around a bus.
+
+``send`` checks and limits a frame (``safety.SafetyGuard``), converts it to raw units and hands it
+to the subclass's ``_write``. A supervisor thread eases to neutral when frames stop for
+``watchdog_s``, polls health at ``read_rate`` and reconnects a lost port with back-off. ``close``
+(called by the scheduler on every exit path, signals included) eases to neutral over ``ease_s``
+and switches the servos off. Hardware faults never raise out of ``send`` or ``close``: they are
+events, named in ``health()`` and ``report()``, and mark the backend degraded.
+
+A subclass implements the ``_hw_*`` hooks for its bus; everything here is bus-agnostic.
+"""
+
+from __future__ import annotations
+
+import abc
+import collections
+import re
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from convodrive.backends.base import Backend, Session
+from convodrive.backends.safety import Ease, RawMap, Refused, SafetyGuard, Watchdog
+from convodrive.errors import UserError
+from convodrive.targets import TargetFrame, TargetSpec
+
+MAX_EVENTS = 100
+TICK_HZ = 30.0
+
+
+class PortLost(Exception):
+    """The serial port failed underneath us (unplugged, closed); the backend must reconnect."""
+
+
+def open_error(port: str, exc: Exception) -> UserError:
+    """One line saying why a serial port would not open."""
+    args = exc.args
+    errno = getattr(exc, "errno", None) or (args[0] if args and isinstance(args[0], int) else None)
+    nested = re.search(r"\((\d+), '", str(exc))  # pyserial wraps termios errors in its message
+    errno = errno or (int(nested.group(1)) if nested else None)
+    reason = {2: "no such port", 13: "permission denied (is your user in the dialout group?)",
+              16: "port is busy (another program has it open)", 25: "not a serial port"}.get(errno or 0)
+    if reason is None:
+        reason = str(args[-1] if args and isinstance(args[-1], str) else exc).split(": ")[-1]
+    return UserError(f"{port}: cannot open serial port ({reason})")
+
+
+class ServoBackend(Backend):
+    def __init__(self, options: dict[str, Any] | None = None) -> None:
+        super().__init__(options)
+        self.guard: SafetyGuard | None = None
+        self.names: list[str] = []
+        self.columns = np.zeros(0, dtype=int)
+        self.watchdog = Watchdog(float(self.options.get("watchdog_s", 0.5)))
+        self.ease_s = float(self.options.get("ease_s", 1.0))
+        self.read_period = 1.0 / max(0.1, float(self.options.get("read_rate", 10.0)))
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._ease: Ease | None = None
+        self._last_frame_time: float | None = None
+        self._port_lost_at: float | None = None
+        self._reconnect_after = 0.0
+        self._events: list[dict[str, Any]] = []
+        self._faults: set[str] = set()
+        self._counts: collections.Counter[str] = collections.Counter()
+        self._write_ms: collections.deque[float] = collections.deque(maxlen=10_000)
+        self._read_ms: collections.deque[float] = collections.deque(maxlen=10_000)
+        self._torque_off: dict[str, bool] = {}
+        self._eased = False
+        self._closed = False
+
+    # ---------------------------------------------------------------- hooks
+    @abc.abstractmethod
+    def _hw_calibration(self, spec: TargetSpec) -> RawMap:
+        """Validate options, set ``self.names`` (driven joints, spec order); return the raw map."""
+
+    @abc.abstractmethod
+    def _hw_open(self) -> None:
+        """Connect and initialise the servos; UserError if nothing usable answers."""
+
+    @abc.abstractmethod
+    def _hw_present(self) -> np.ndarray:
+        """Present raw positions per driven joint (NaN where unknown)."""
+
+    @abc.abstractmethod
+    def _hw_write(self, raw: np.ndarray) -> None:
+        """Send one raw goal per driven joint; raise PortLost if the port failed."""
+
+    @abc.abstractmethod
+    def _hw_poll(self) -> None:
+        """Read health (at ``read_rate``); raise PortLost; report faults through ``_event``."""
+
+    @abc.abstractmethod
+    def _hw_reconnect(self) -> bool:
+        """Try to reopen a lost port and re-initialise; True on success."""
+
+    @abc.abstractmethod
+    def _hw_connected(self) -> bool: ...
+
+    @abc.abstractmethod
+    def _hw_off(self) -> dict[str, bool]:
+        """Torque off (stop pulses) per joint, confirmed where the bus allows."""
+
+    @abc.abstractmethod
+    def _hw_close(self) -> None: ...
+
+    def _hw_health(self) -> dict[str, dict[str, Any]]:
+        """Per-joint health for ``health()``."""
+        return {}
+
+    # ---------------------------------------------------------------- open
+    def open(self, spec: TargetSpec, session: Session) -> None:
+        super().open(spec, session)
+        if not self.options.get("port"):
+            raise UserError(f"backends.{self.name}.port: no serial port given (run `convodrive emulate "
+                            f"{self.name}` for an emulated one and use the path it prints)")
+        raw_map = self._hw_calibration(spec)
+        self.columns = np.array([spec.index[n] for n in self.names])
+        try:
+            self.guard = SafetyGuard(sub_spec(spec, self.names), raw_map)
+        except ValueError as exc:
+            raise UserError(f"backends.{self.name}.joints: {exc}") from None
+        self._hw_open()
+        present = self._hw_present()
+        neutral_raw = raw_map.to_raw(self.guard.neutral).astype(float)
+        present = np.where(np.isfinite(present), present, neutral_raw)
+        self.guard.reset(raw_map.to_joint(present))
+        if np.max(np.abs(present - neutral_raw)) > 2:
+            self._run_ease(self.ease_s)  # start from neutral, smoothly, wherever the head was
+        self.watchdog.feed()
+        self._thread = threading.Thread(target=self._supervise, name=f"{self.name}-supervisor", daemon=True)
+        self._thread.start()
+
+    # ---------------------------------------------------------------- frames
+    def send(self, frame: TargetFrame) -> None:
+        if self._closed or self.guard is None:
+            return
+        with self._lock:
+            try:
+                values = self.guard.check(np.asarray(frame.values, dtype=float)[self.columns])
+            except Refused as exc:  # not fed to the watchdog: a stream of bad frames ends at neutral
+                self._counts["frames_refused"] += 1
+                self._event("frame_refused", None, str(exc), fault=False)
+                return
+            self.watchdog.feed()
+            self._ease = None
+            fps = self.session.fps if self.session else TICK_HZ
+            prev, self._last_frame_time = self._last_frame_time, frame.time
+            step = 1.0 / fps if prev is None else min(max(frame.time - prev, 0.25 / fps), 0.1)
+            self._command(self.guard.limit(values, step))
+            self._counts["frames"] += 1
+
+    def _command(self, command: np.ndarray) -> None:
+        """Write one limited command in raw units, timing the bus."""
+        assert self.guard is not None
+        if not self._hw_connected():
+            self._counts["frames_unsent"] += 1
+            return
+        raw = self.guard.to_raw(command)
+        t0 = time.perf_counter()
+        try:
+            self._hw_write(raw)
+            self._counts["goal_writes"] += 1
+        except PortLost as exc:
+            self._port_lost(str(exc))
+        self._write_ms.append((time.perf_counter() - t0) * 1e3)
+
+    def _run_ease(self, seconds: float) -> None:
+        """Blocking ease from the last command to neutral at 30 Hz (open and close)."""
+        assert self.guard is not None and self.guard.last is not None
+        ease = Ease(self.guard.last.copy(), self.guard.neutral.copy(), seconds)
+        period = 1.0 / TICK_HZ
+        deadline = time.monotonic() + seconds + 3.0  # velocity limits may stretch it; never hang
+        while time.monotonic() < deadline and self._hw_connected():
+            now = time.monotonic()
+            self._command(self.guard.limit(ease.at(now), period))
+            if ease.done(now) and np.allclose(self.guard.last, self.guard.neutral, atol=1e-9):
+                return
+            time.sleep(max(0.0, period - (time.monotonic() - now)))
+
+    # ---------------------------------------------------------------- supervisor
+    def _supervise(self) -> None:
+        next_read = time.monotonic()
+        while not self._stop.wait(1.0 / TICK_HZ):
+            now = time.monotonic()
+            with self._lock:
+                if not self._hw_connected():
+                    self._try_reconnect(now)
+                    continue
+                self._watch(now)
+                if now >= next_read:
+                    next_read = now + self.read_period
+                    t0 = time.perf_counter()
+                    try:
+                        self._hw_poll()
+                    except PortLost as exc:
+                        self._port_lost(str(exc))
+                        continue
+                    self._read_ms.append((time.perf_counter() - t0) * 1e3)
+
+    def _watch(self, now: float) -> None:
+        guard = self.guard
+        assert guard is not None
+        if self._ease is None and self.watchdog.expired(now) and guard.last is not None \
+                and not np.allclose(guard.last, guard.neutral, atol=1e-9):
+            self.watchdog.tripped += 1
+            self._event("watchdog", None, f"no frame for {self.watchdog.timeout:.2f} s, easing to neutral", fault=False)
+            self._ease = Ease(guard.last.copy(), guard.neutral.copy(), self.ease_s, now)
+        if self._ease is not None:
+            self._command(guard.limit(self._ease.at(now), 1.0 / TICK_HZ))
+            if self._ease.done(now) and np.allclose(guard.last, guard.neutral, atol=1e-9):
+                self._ease = None
+                self._last_frame_time = None
+
+    def _port_lost(self, detail: str) -> None:
+        if self._port_lost_at is None:
+            self._port_lost_at = time.monotonic()
+            self._reconnect_after = self._port_lost_at + 0.2
+            self._event("port_lost", None, detail)
+
+    def _try_reconnect(self, now: float) -> None:
+        if now < self._reconnect_after:
+            return
+        lost_for = now - (self._port_lost_at or now)
+        self._reconnect_after = now + min(2.0, 0.2 + lost_for / 2)  # back off while it stays gone
+        if self._hw_reconnect():
+            self._port_lost_at = None
+            self._event("port_recovered", None, f"after {lost_for:.2f} s", fault=False)
+
+    # ---------------------------------------------------------------- close
+    def close(self) -> None:
+        """Ease to neutral, torque off, close the port. Never raises: it runs on every exit path."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        with self._lock:
+            try:
+                if self.guard is not None:
+                    if not self._hw_connected():
+                        self._reconnect_after = 0.0
+                        self._try_reconnect(time.monotonic())
+                    if self._hw_connected() and self.guard.last is not None:
+                        self._run_ease(self.ease_s)
+                        self._eased = self._hw_connected()
+                    self._torque_off = self._hw_off() if self._hw_connected() else {n: False for n in self.names}
+                    off = [n for n, ok in self._torque_off.items() if not ok]
+                    if off:
+                        self._event("torque_off_failed", ",".join(off), "could not confirm torque off")
+            except Exception as exc:  # noqa: BLE001 - a fault here must not hide the run's result
+                self._event("close_error", None, repr(exc))
+            finally:
+                self._hw_close()
+
+    # ---------------------------------------------------------------- reporting
+    def _event(self, kind: str, joint: str | None, detail: str, fault: bool = True) -> None:
+        if fault:
+            self._faults.add(f"{kind}:{joint}" if joint else kind)
+        if len(self._events) < MAX_EVENTS:
+            self._events.append({"t": round(time.monotonic(), 3), "event": kind, "joint": joint, "detail": detail})
+
+    def health(self) -> dict[str, Any]:
+        """Live snapshot: ``degraded`` while anything is wrong now; ``faults`` lists all seen so far."""
+        servos = self._hw_health()
+        current = [f"{s['status']}:{n}" for n, s in servos.items() if s.get("status", "ok") != "ok"]
+        for n, s in servos.items():
+            current += [f"{f}:{n}" for f in s.get("faults", [])]
+        if self.guard is not None and not self._closed and not self._hw_connected():
+            current.append("port_lost")
+        return {
+            "status": "degraded" if current else "ok", "port": self.options.get("port"),
+            "active_faults": sorted(set(current)), "faults": sorted(self._faults),
+            "frames": self._counts["frames"], "frames_refused": self._counts["frames_refused"],
+            "watchdog_trips": self.watchdog.tripped, "servos": servos,
+            "torque_off": (bool(self.names) and all(self._torque_off.get(n, False) for n in self.names))
+            if self._closed else None,
+        }
+
+    def report(self) -> dict[str, Any]:
+        """After close: ``ok``, ``degraded`` (faults seen, head safe) or ``failed`` (torque off unconfirmed)."""
+        torque_off = bool(self.names) and all(self._torque_off.get(n, False) for n in self.names)
+        status = "failed" if not torque_off else ("degraded" if self._faults else "ok")
+        return {
+            "status": status, "faults": sorted(self._faults), "port": self.options.get("port"),
+            "frames": self._counts["frames"], "frames_refused": self._counts["frames_refused"],
+            "frames_unsent": self._counts["frames_unsent"], "goal_writes": self._counts["goal_writes"],
+            "watchdog_trips": self.watchdog.tripped, "eased_to_neutral": self._eased,
+            "torque_off": torque_off, "torque_off_per_joint": dict(self._torque_off),
+            "bus_ms": {"write": percentiles(self._write_ms), "health_read": percentiles(self._read_ms)},
+            "clamped_frames": self.guard.clamped if self.guard else 0,
+            "servos": self._hw_health(), "events": list(self._events),
+        }
+
+
+def sub_spec(spec: TargetSpec, names: list[str]) -> TargetSpec:
+    """The spec restricted to the joints a backend drives."""
+    idx = [spec.index[n] for n in names]
+    return TargetSpec(spec.name, tuple(names), spec.lower[idx], spec.upper[idx], spec.neutral[idx],
+                      spec.max_velocity[idx], spec.max_acceleration[idx], tuple(spec.units[i] for i in idx))
+
+
+def percentiles(values: collections.deque[float]) -> dict[str, float | None]:
+    if not values:
+        return {"p50": None, "p99": None, "n": 0}
+    arr = np.fromiter(values, float)
+    return {"p50": round(float(np.percentile(arr, 50)), 3), "p99": round(float(np.percentile(arr, 99)), 3),
+            "n": int(arr.size)}
