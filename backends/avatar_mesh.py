@@ -50,8 +50,9 @@ MOUTH_Y = 1.572
 MOUTH_HALF_WIDTH = 0.025
 JAW_PIVOT = np.array([0.0, 1.60, -0.02])
 JAW_OPEN_ANGLE = 0.27
-"""Radians the lower face turns about ``JAW_PIVOT`` at ``jawOpen`` = 1; the ``jaw`` joint's own
-rotation is read as the same opening (see ``AvatarPoser``), so the two never add up twice."""
+"""Radians the mesh's lower face turns about ``JAW_PIVOT`` at ``jawOpen`` = 1 (a mannequin's jaw,
+shorter than a skull's). The ``jaw`` joint's rotation is read as the same opening (see
+``AvatarPoser.face_weights``), so joint and channel never open the mouth twice."""
 
 
 def _taper(dy: np.ndarray) -> np.ndarray:
@@ -139,16 +140,18 @@ def _part(material: str, verts: np.ndarray, faces: np.ndarray, weights: np.ndarr
 def _torso() -> list[_Part]:
     ref = np.array([0.0, 0.0, 1.0])
     sp3, s1, s2, pel = J["spine3"], J["spine1"], J["spine2"], J["pelvis"]
-    ys = np.array([0.80, 0.95, 1.06, 1.19, 1.25, 1.36, 1.45])
+    ys = np.array([0.84, 0.95, 1.06, 1.19, 1.25, 1.36, 1.45])
     zs = np.array([0.0, 0.0, -0.01, -0.005, 0.0, -0.015, -0.02])
     width = np.array([0.150, 0.165, 0.142, 0.150, 0.165, 0.182, 0.14])
     depth = np.array([0.095, 0.105, 0.092, 0.098, 0.105, 0.098, 0.075])
     keys = np.stack([np.zeros_like(ys), ys, zs], 1)
     parts = []
     # trousers: crotch to the waist; shirt: waist to the shoulders, a little wider where they overlap
-    v, f, rho = loft(keys[:3], width[:3], depth[:3], ref, 22, sub=3, caps=(True, False), power=2.6)
+    hips = keys[:3].copy()
+    hips[2, 1] = 1.0  # the trousers stop under the shirt's hem, where only the pelvis moves them
+    v, f, rho = loft(hips, width[:3], depth[:3], ref, 22, sub=3, caps=(True, False), power=2.6, cap_length=0.3)
     parts.append(_part("cloth", v, f, chain_weights(rho, [pel, pel], NUM_JOINTS), "trousers"))
-    v, f, rho = loft(keys[1:] + [0, 0, 0], width[1:] * 1.03, depth[1:] * 1.04, ref, 22, sub=3, caps=(False, True), power=2.6)
+    v, f, rho = loft(keys[1:], width[1:] * 1.05, depth[1:] * 1.07, ref, 22, sub=3, caps=(False, True), power=2.6)
     w = chain_weights(rho + 1, [pel, s1, s2, sp3, sp3], NUM_JOINTS)
     for side in (1, -1):  # shoulder tops follow the collar bones a little
         collar = J["left_collar" if side > 0 else "right_collar"]
@@ -172,7 +175,7 @@ def _arm(side: str) -> list[_Part]:
     keys = np.array([P[shoulder] - 0.05 * out, P[shoulder], P[elbow], P[elbow] + 0.07 * out])
     v, f, rho = loft(keys, [0.05, 0.048, 0.040, 0.038], [0.053, 0.05, 0.041, 0.039], ref, 14, sub=3)
     parts.append(_part("cloth", v, f, chain_weights(rho, [collar, shoulder, elbow], NUM_JOINTS), "shirt"))
-    v, f = ellipsoid(P[shoulder] - 0.01 * out + [0, 0.005, 0], np.array([0.058, 0.058, 0.056]), 10, 14)
+    v, f = ellipsoid(P[shoulder] - 0.012 * out + [0, 0.002, 0], np.array([0.05, 0.05, 0.048]), 10, 14)
     parts.append(_part("cloth", v, f, rigid_weights(len(v), collar, NUM_JOINTS), "shirt"))
     keys = np.array([P[elbow] - 0.03 * out, P[elbow], P[wrist]])
     v, f, rho = loft(keys, [0.036, 0.035, 0.025], [0.037, 0.036, 0.022], ref, 12, sub=4)
@@ -194,8 +197,10 @@ def _hand(side: str) -> list[_Part]:
     for finger, r in radii.items():
         j1, j2, j3 = (J[f"{side}_{finger}{i}"] for i in (1, 2, 3))
         a, b, c = P[j1], P[j2], P[j3]
-        back = 0.45 if finger == "thumb" else 0.3
-        keys = np.array([a - back * (b - a), a, b, c, c + 0.8 * (c - b)])
+        if finger == "thumb":  # the thumb's metacarpal starts inside the palm, by the wrist
+            keys = np.array([w0 + [0.018 * sgn, -0.006, -0.008], a, b, c, c + 0.55 * (c - b)])
+        else:
+            keys = np.array([a - 0.3 * (b - a), a, b, c, c + 0.8 * (c - b)])
         scale = np.array([1.1, 1.0, 0.93, 0.86, 0.78]) * r
         v, f, rho = loft(keys, scale, scale * 0.88, ref, 7, sub=2)
         parts.append(_part("skin", v, f, chain_weights(rho, [wrist, j1, j2, j3], NUM_JOINTS, blend=0.25), "skin"))
@@ -246,19 +251,21 @@ def _head() -> _Part:
 def _skin_deltas(p: np.ndarray) -> dict[str, np.ndarray]:
     """Blendshapes of the face skin: the lower face rides the jaw; cheeks and corners follow the lips."""
     front = smoothstep(HEAD_CENTER[2] - 0.03, HEAD_CENTER[2] + 0.03, p[:, 2])
-    jaw = smoothstep(MOUTH_Y - 0.003, MOUTH_Y - 0.016, p[:, 1]) * front
+    jaw = smoothstep(MOUTH_Y - 0.002, MOUTH_Y - 0.011, p[:, 1]) * front
     out: dict[str, np.ndarray] = {
         "jawOpen": jaw[:, None] * jaw_delta(p),
         "jawForward": jaw[:, None] * [0, 0, 0.008],
         "jawLeft": jaw[:, None] * [0.008, 0, 0],
         "jawRight": jaw[:, None] * [-0.008, 0, 0],
     }
-    near_mouth = np.exp(-(((p[:, 0]) / 0.035) ** 2 + ((p[:, 1] - MOUTH_Y) / 0.02) ** 2)) * front
+    # everything the lips pull stays within the lower face around the mouth
+    window = front * smoothstep(0.062, 0.045, np.abs(p[:, 0])) * smoothstep(MOUTH_Y + 0.02, MOUTH_Y + 0.01, p[:, 1])
+    near_mouth = np.exp(-((p[:, 0] / 0.028) ** 2 + ((p[:, 1] - MOUTH_Y) / 0.016) ** 2)) * window
     out["mouthLeft"] = near_mouth[:, None] * [0.006, 0, 0]
     out["mouthRight"] = near_mouth[:, None] * [-0.006, 0, 0]
     out["mouthPucker"] = near_mouth[:, None] * np.stack([-0.3 * p[:, 0], np.zeros(len(p)), np.full(len(p), 0.004)], 1)
     for side, sgn in (("Left", 1.0), ("Right", -1.0)):
-        corner = np.exp(-(((p[:, 0] - sgn * 0.03) / 0.016) ** 2 + ((p[:, 1] - MOUTH_Y - 0.004) / 0.016) ** 2)) * front
+        corner = np.exp(-(((p[:, 0] - sgn * 0.028) / 0.013) ** 2 + ((p[:, 1] - MOUTH_Y - 0.002) / 0.012) ** 2)) * window
         out[f"mouthSmile{side}"] = corner[:, None] * [sgn * 0.004, 0.006, -0.002]
         out[f"mouthFrown{side}"] = corner[:, None] * [0, -0.005, 0]
         out[f"mouthStretch{side}"] = corner[:, None] * [sgn * 0.005, -0.001, -0.001]
@@ -309,10 +316,10 @@ def _lips() -> _Part:
     uu = np.linspace(0, 2 * np.pi, nu, endpoint=False)
     vv = np.linspace(0, 2 * np.pi, nv, endpoint=False)
     cu, su = np.cos(uu), np.sin(uu)
-    a, b = MOUTH_HALF_WIDTH, 0.0045
+    a, b = MOUTH_HALF_WIDTH, 0.0038
     cx, cy = a * cu, MOUTH_Y + b * su
     cz = surface_z(cx, cy) + 0.0045
-    r = np.where(su > 0, 0.0048, 0.0058) * (0.35 + 0.65 * np.abs(su) ** 0.5)
+    r = np.where(su > 0, 0.0040, 0.0049) * (0.35 + 0.65 * np.abs(su) ** 0.5)
     radial = normalize(np.stack([cu / a, su / b, np.zeros(nu)], 1))
     fwd = np.array([0.0, 0.0, 1.0])
     ring = np.stack([cx, cy, cz], 1)
@@ -342,7 +349,7 @@ def _mouth_inside() -> list[_Part]:
     xn = np.linspace(-1, 1, nx)
     s = np.linspace(-1, 1, ns)
     x = np.repeat(xn[None] * MOUTH_HALF_WIDTH * 0.98, ns, 0)
-    prof = np.repeat((1 - xn**2)[None] ** 0.35, ns, 0)
+    prof = np.repeat(np.maximum(1 - xn**2, 0.05)[None] ** 0.35, ns, 0)
     y = MOUTH_Y + s[:, None] * 0.0008 * prof
     z = surface_z(x, MOUTH_Y) + 0.0012
     verts = np.stack([x, y, z], -1).reshape(-1, 3)
@@ -351,7 +358,7 @@ def _mouth_inside() -> list[_Part]:
     sv = np.repeat(s, nx)
     inside.deltas = _mouth_rig_deltas(verts, (1 + sv) / 2 * prof.ravel(), (1 - sv) / 2 * prof.ravel(), x.ravel() / MOUTH_HALF_WIDTH)
     parts = [inside]
-    for lower, (y0, y1) in ((False, (MOUTH_Y - 0.004, MOUTH_Y + 0.007)), (True, (MOUTH_Y - 0.008, MOUTH_Y + 0.002))):
+    for lower, (y0, y1) in ((False, (MOUTH_Y - 0.004, MOUTH_Y + 0.007)), (True, (MOUTH_Y - 0.003, MOUTH_Y + 0.004))):
         tx = np.linspace(-0.019, 0.019, 12)
         ty = np.array([y0, y1])
         gx, gy = np.meshgrid(tx, ty)
@@ -372,7 +379,7 @@ def _eyes() -> list[_Part]:
     for side, center in zip(("left", "right"), EYES):
         v, f = ellipsoid(center, np.full(3, EYE_RADIUS), 14, 18)
         cos_axis = normalize(v - center)[:, 2]
-        colors = np.where((cos_axis > np.cos(0.20))[:, None], COLORS["pupil"],
+        colors = np.where((cos_axis > np.cos(0.24))[:, None], COLORS["pupil"],
                           np.where((cos_axis > np.cos(0.48))[:, None], COLORS["iris"], COLORS["sclera"]))
         parts.append(_part("eyes", v, f, rigid_weights(len(v), J[f"{side}_eye_smplhf"], NUM_JOINTS), colors))
     return parts

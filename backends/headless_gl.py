@@ -4,7 +4,7 @@ PyOpenGL binds to one platform (GLX, EGL, OSMesa) the first time ``OpenGL`` is i
 from ``PYOPENGL_PLATFORM``; it cannot switch afterwards. So the choice is made once per process,
 by rendering a tiny scene in a child process for each candidate (EGL first: it is faster and can
 use a GPU; OSMesa is pure software and always works where libOSMesa is installed). A user who
-sets ``PYOPENGL_PLATFORM`` gets exactly that platform, checked the same way.
+sets ``PYOPENGL_PLATFORM`` gets exactly that platform, checked in this process.
 
 pyrender 0.1.45 pins PyOpenGL==3.1.0, whose EGL/OSMesa bindings MuJoCo cannot use. We install
 pyrender with ``--no-deps`` next to PyOpenGL>=3.1.7; its offscreen path works there. It also uses
@@ -17,6 +17,7 @@ import os
 import subprocess
 import sys
 from types import ModuleType
+from typing import Any
 
 from convodrive.errors import UserError
 
@@ -31,7 +32,8 @@ r = pyrender.OffscreenRenderer(16, 16)
 s = pyrender.Scene(bg_color=[0.0, 1.0, 0.0, 1.0])
 s.add(pyrender.PerspectiveCamera(yfov=1.0))
 color, _ = r.render(s)
-r.delete()
+from convodrive.backends.headless_gl import delete_offscreen
+delete_offscreen(r)
 assert color.shape == (16, 16, 3) and color[8, 8, 1] > 200, "offscreen render returned no image"
 """
 
@@ -49,6 +51,16 @@ def _probe(platform: str, timeout: float = 60.0) -> str | None:
         return None
     lines = [ln.strip() for ln in proc.stderr.strip().splitlines() if ln.strip()]
     return lines[-1] if lines else f"exit code {proc.returncode}"
+
+
+def _probe_here(platform: str) -> str | None:
+    """Like ``_probe`` but in this process, for a platform that is already decided."""
+    os.environ["PYOPENGL_PLATFORM"] = platform
+    try:
+        exec(compile(_PROBE, "<gl probe>", "exec"), {})
+    except Exception as exc:  # any failure of the GL stack is reported as one line
+        return f"{type(exc).__name__}: {exc}".splitlines()[0]
+    return None
 
 
 def _platform_of_loaded_opengl() -> str | None:
@@ -81,14 +93,39 @@ def select_platform() -> str:
     candidates = (requested,) if requested else CANDIDATES
     failures = []
     for platform in candidates:
-        reason = _probe(platform)
+        # a platform the user named binds this process anyway: check it here, not in a child
+        reason = _probe_here(platform) if requested else _probe(platform)
         if reason is None:
             os.environ["PYOPENGL_PLATFORM"] = platform
             _chosen = platform
             return platform
         failures.append(f"{platform}: {reason}")
-    hint = "install libegl1 + libgl1-mesa-dri (EGL) or libosmesa6 (OSMesa)"
+    hint = (f"unset PYOPENGL_PLATFORM or set it to {' or '.join(CANDIDATES)}" if requested and requested not in CANDIDATES
+            else "install libegl1 + libgl1-mesa-dri (EGL) or libosmesa6 (OSMesa)")
     raise UserError(f"render: no headless OpenGL works ({'; '.join(failures)}); {hint}")
+
+
+def delete_offscreen(renderer: Any) -> None:
+    """Free a pyrender ``OffscreenRenderer`` without ``eglTerminate``.
+
+    pyrender's own ``delete`` terminates the EGL display, which is one object per device in a
+    process: it would kill every other live context on it (a second renderer, MuJoCo's camera).
+    So for EGL we destroy only our context; other platforms use pyrender's ``delete``.
+    """
+    platform = getattr(renderer, "_platform", None)
+    if platform is None:
+        return
+    if type(platform).__name__ != "EGLPlatform":
+        renderer.delete()
+        return
+    from OpenGL import EGL
+
+    platform.make_current()
+    renderer._renderer.delete()
+    EGL.eglMakeCurrent(platform._egl_display, EGL.EGL_NO_SURFACE, EGL.EGL_NO_SURFACE, EGL.EGL_NO_CONTEXT)
+    EGL.eglDestroyContext(platform._egl_display, platform._egl_context)
+    platform._egl_context = platform._egl_display = None
+    renderer._renderer = renderer._platform = None
 
 
 def import_pyrender() -> ModuleType:

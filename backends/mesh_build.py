@@ -49,7 +49,8 @@ def _superellipse(theta: np.ndarray, power: float) -> tuple[np.ndarray, np.ndarr
 
 
 def loft(keys: np.ndarray, ra: np.ndarray, rb: np.ndarray, ref: np.ndarray, segments: int, sub: int = 3,
-         caps: tuple[bool, bool] = (True, True), power: float = 2.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+         caps: tuple[bool, bool] = (True, True), power: float = 2.0,
+         cap_length: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A tube through ``keys`` with elliptical rings (radius ``rb`` toward ``ref``, ``ra`` across).
 
     Returns vertices, faces (outward) and each vertex's position along the keys (0 .. K-1),
@@ -77,7 +78,7 @@ def loft(keys: np.ndarray, ra: np.ndarray, rb: np.ndarray, ref: np.ndarray, segm
     for end, sign in ((0, -1.0), (len(rho) - 1, 1.0)):
         if not caps[0 if end == 0 else 1]:
             continue
-        c, t, r = centers[end], tang[end] * sign, 0.5 * (ras[end] + rbs[end])
+        c, t, r = centers[end], tang[end] * sign, 0.5 * (ras[end] + rbs[end]) * cap_length
         ring_idx = np.arange(segments) + end * segments
         for phi in np.radians([40.0, 70.0]):
             scale = np.cos(phi)

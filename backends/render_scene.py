@@ -7,21 +7,27 @@ are drawn one after another into the tiles of a grid.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import time
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
+from convodrive.backends import avatar_shader
 from convodrive.backends.avatar_mesh import MATERIALS, build_avatar
-from convodrive.backends.headless_gl import import_pyrender
-from convodrive.backends.mesh_build import grid_faces
+from convodrive.backends.headless_gl import delete_offscreen, import_pyrender
+from convodrive.backends.mesh_build import smoothstep
 from convodrive.backends.skinning import AvatarPoser
 from convodrive.errors import UserError
 from convodrive.motion.clip import MotionFrame
+from convodrive.motion.skeleton import REST_POSITIONS
 
-BACKGROUND = (0.80, 0.82, 0.84)
+WALL_Z = -1.3
+WALL_COLOR = (0.62, 0.66, 0.71)
+FLOOR_COLOR = (0.50, 0.52, 0.55)
+BACKGROUND = WALL_COLOR
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,38 +84,57 @@ def parse_resolution(text: str) -> tuple[int, int]:
     return w, h
 
 
-def _backdrop(pyrender: Any) -> Any:
-    """A studio cyclorama: floor curving up into a back wall, shaded lighter toward the middle."""
-    xs = np.linspace(-5, 5, 3)
-    profile = [(3.0, 0.0), (-0.6, 0.0)] + [(-0.6 - 0.9 * math.sin(a), 0.9 - 0.9 * math.cos(a))
-                                           for a in np.linspace(0.2, math.pi / 2, 6)] + [(-1.5, 4.0)]
-    pts = np.array([[x, y, z] for z, y in profile for x in xs])
-    faces = grid_faces(len(profile), len(xs), wrap=False)
-    tri = pts[faces]
-    if np.cross(tri[0, 1] - tri[0, 0], tri[0, 2] - tri[0, 0])[1] < 0:
-        faces = faces[:, ::-1]
-    glow = np.exp(-((pts[:, 1] - 1.3) / 1.8) ** 2)
-    base = np.array([0.44, 0.48, 0.53])
-    colors = np.concatenate([base * (0.55 + 0.45 * glow[:, None]), np.ones((len(pts), 1))], 1)
-    material = pyrender.MetallicRoughnessMaterial(baseColorFactor=[1, 1, 1, 1], metallicFactor=0.0, roughnessFactor=1.0)
-    prim = pyrender.Primitive(positions=pts, normals=_smooth_normals(pts, faces), color_0=colors, indices=faces,
-                              material=material)
-    return pyrender.Mesh([prim])
+def backdrop_image(width: int, height: int, camera: Any, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The studio behind the avatar, ray-cast once per camera: a floor meeting a softly lit wall.
+
+    Returns the (H, W, 3) float image and the (H, W, 3) world point each pixel sees, which the
+    per-frame contact shadow uses. Drawn in NumPy and composited where the GL depth is empty,
+    because a full-screen backdrop mesh would double the software rasteriser's shading work.
+    """
+    ys, xs = np.mgrid[0:height, 0:width] + 0.5
+    proj = camera.get_projection_matrix(width, height)
+    ndc = np.stack([xs / width * 2 - 1, 1 - ys / height * 2], -1)
+    d = np.stack([ndc[..., 0] / proj[0, 0], ndc[..., 1] / proj[1, 1], -np.ones_like(xs)], -1) @ pose[:3, :3].T
+    eye = pose[:3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_floor = np.where(d[..., 1] < 0, -eye[1] / d[..., 1], np.inf)
+        t_wall = np.where(d[..., 2] < 0, (WALL_Z - eye[2]) / d[..., 2], np.inf)
+    t = np.minimum(t_floor, t_wall)
+    t = np.where(np.isfinite(t), t, 50.0)
+    world = eye + d * t[..., None]
+    wall_glow = np.exp(-((world[..., 0] / 2.4) ** 2 + ((world[..., 1] - 1.35) / 1.5) ** 2))
+    wall = np.array(WALL_COLOR) * (0.72 + 0.28 * wall_glow)[..., None]
+    floor_glow = np.exp(-(world[..., 0] ** 2 + (world[..., 2] - 0.3) ** 2) / 6.0)
+    floor = np.array(FLOOR_COLOR) * (0.78 + 0.22 * floor_glow)[..., None]
+    # a cove: blend floor into wall over the last 40 cm before the wall, like a studio cyclorama
+    cove = smoothstep(WALL_Z + 0.4, WALL_Z, world[..., 2]) * (t_floor <= t_wall)
+    is_floor = (t_floor <= t_wall)[..., None]
+    image = np.where(is_floor, floor * (1 - cove[..., None]) + wall * cove[..., None], wall)
+    return image.astype(np.float32), world.astype(np.float32)
 
 
-def _smooth_normals(pts: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    n = np.zeros_like(pts)
-    tri = pts[faces]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    for k in range(3):
-        np.add.at(n, faces[:, k], fn)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+@contextlib.contextmanager
+def msaa_samples(samples: int) -> Iterator[None]:
+    """Make pyrender allocate its offscreen framebuffer with ``samples`` (it hard-codes 4).
+
+    4x MSAA costs a software rasteriser about 2.5x per frame, so it is an option, not the default.
+    pyrender allocates the framebuffer on the first render, which must happen inside this block.
+    """
+    import pyrender.renderer as pr_renderer
+
+    original = pr_renderer.glRenderbufferStorageMultisample
+    pr_renderer.glRenderbufferStorageMultisample = lambda target, _n, *args: original(target, samples, *args)
+    try:
+        yield
+    finally:
+        pr_renderer.glRenderbufferStorageMultisample = original
 
 
 class AvatarRenderer:
     """Offscreen renders of the avatar posed by canonical motion frames."""
 
-    def __init__(self, width: int = 512, height: int = 512, camera: str = "upper") -> None:
+    def __init__(self, width: int = 512, height: int = 512, camera: str = "upper", antialias: bool = False,
+                 lean_shader: bool = True) -> None:
         if camera not in CAMERAS:
             raise UserError(f"render: camera {camera!r} is not one of {', '.join(CAMERAS)}")
         self.pyrender = pyrender = import_pyrender()
@@ -119,11 +144,11 @@ class AvatarRenderer:
         self.width, self.height, self.camera_name = int(width), int(height), camera
         self.avatar = build_avatar()
         self.poser = AvatarPoser(self.avatar)
-        self.scene = pyrender.Scene(bg_color=[*BACKGROUND, 1.0], ambient_light=[0.20, 0.20, 0.22])
+        self.scene = pyrender.Scene(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=[0.20, 0.20, 0.22])
         self._primitives: list[tuple[Any, int, int, np.ndarray]] = []
         prims = []
         for material, (start, end) in self.avatar.material_ranges.items():
-            pbr = pyrender.MetallicRoughnessMaterial(baseColorFactor=[1, 1, 1, 1], metallicFactor=0.0,
+            pbr = pyrender.MetallicRoughnessMaterial(baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0,
                                                      roughnessFactor=MATERIALS[material])
             colors = self.avatar.colors[start:end]
             prim = pyrender.Primitive(positions=self.avatar.rest[start:end], normals=np.tile([0.0, 0.0, 1.0], (end - start, 1)),
@@ -133,7 +158,6 @@ class AvatarRenderer:
             prims.append(prim)
             self._primitives.append((prim, start, end, interleaved))
         self.scene.add(pyrender.Mesh(prims))
-        self.scene.add(_backdrop(pyrender))
         preset = CAMERAS[camera]
         self.camera = pyrender.PerspectiveCamera(yfov=math.radians(preset.yfov_deg), aspectRatio=self.width / self.height,
                                                  znear=0.05, zfar=30.0)
@@ -145,11 +169,20 @@ class AvatarRenderer:
                                         ((1.0, 1.0, 1.0), 2.6, (-0.8, 2.6, -2.5))):  # rim: behind
             light = pyrender.DirectionalLight(color=np.array(color), intensity=intensity)
             self.scene.add(light, pose=look_at(target + np.array(where), target))
+        backdrop, world = backdrop_image(self.width, self.height, self.camera, self.camera_pose)
+        self._backdrop = backdrop
+        self._backdrop_u8 = np.clip(backdrop * 255, 0, 255).astype(np.uint8)
+        self._floor_pixels = np.flatnonzero(world[..., 1].ravel() < 0.01)
+        self._floor_xz = world.reshape(-1, 3)[self._floor_pixels][:, [0, 2]]
+        self.stats = {"frames": 0, "skin_s": 0.0, "gl_s": 0.0}
         try:
             self.renderer = pyrender.OffscreenRenderer(self.width, self.height)
+            if lean_shader:
+                avatar_shader.install(self.renderer)
+            with msaa_samples(4 if antialias else 0):
+                self.renderer.render(self.scene)  # allocates the framebuffer
         except Exception as exc:  # a platform that probed fine but cannot open this size
             raise UserError(f"render: cannot open a {self.width}x{self.height} offscreen GL context: {exc}") from None
-        self.stats = {"frames": 0, "skin_s": 0.0, "gl_s": 0.0}
 
     def _upload(self, verts: np.ndarray, normals: np.ndarray) -> None:
         GL = self._gl
@@ -164,17 +197,40 @@ class AvatarRenderer:
                 GL.glBufferSubData(GL.GL_ARRAY_BUFFER, 0, buf.nbytes, buf)
         GL.glBindBuffer(GL.GL_ARRAY_BUFFER, 0)
 
+    def _composite(self, rgba: np.ndarray, root: np.ndarray) -> np.ndarray:
+        """Avatar over the backdrop (by coverage alpha), with a soft contact shadow under the root.
+
+        Only pixels the avatar touches are blended in float; the rest is a copy of the backdrop.
+        """
+        out = self._backdrop_u8.copy()
+        if len(self._floor_pixels):
+            d = self._floor_xz - root[[0, 2]]
+            shade = 1.0 - 0.45 * np.exp(-((d[:, 0] / 0.32) ** 2 + (d[:, 1] / 0.24) ** 2))
+            flat = out.reshape(-1, 3)
+            flat[self._floor_pixels] = (self._backdrop.reshape(-1, 3)[self._floor_pixels] * 255 * shade[:, None]).astype(np.uint8)
+        alpha = rgba[..., 3]
+        full = alpha == 255
+        out[full] = rgba[..., :3][full]
+        edge = (alpha > 0) & ~full
+        if edge.any():  # MSAA edges resolve to premultiplied colour
+            a = alpha[edge].astype(np.float32)[:, None] / 255.0
+            out[edge] = np.clip(rgba[..., :3][edge] + out[edge] * (1.0 - a), 0, 255).astype(np.uint8)
+        return out
+
     def render(self, frame: MotionFrame) -> np.ndarray:
         """One (H, W, 3) uint8 image of the avatar in ``frame``'s pose."""
         t0 = time.perf_counter()
         verts, normals = self.poser.pose(frame)
         t1 = time.perf_counter()
         self._upload(verts, normals)
-        color, _ = self.renderer.render(self.scene)
+        rgba, depth = self.renderer.render(self.scene, flags=self.pyrender.RenderFlags.RGBA)
+        if rgba.shape[-1] == 3:  # OSMesa draws to its own buffer and returns RGB: coverage from depth
+            rgba = np.dstack([rgba, np.where(depth > 0, 255, 0).astype(np.uint8)])
+        image = self._composite(rgba, REST_POSITIONS[0] + np.asarray(frame.translation, float))
         self.stats["skin_s"] += t1 - t0
         self.stats["gl_s"] += time.perf_counter() - t1
         self.stats["frames"] += 1
-        return color
+        return image
 
     def render_takes(self, takes: Sequence[MotionFrame]) -> np.ndarray:
         """The takes tiled in a grid (``grid_shape``), each tile W x H."""
@@ -182,7 +238,7 @@ class AvatarRenderer:
             return self.render(takes[0])
         rows, cols = grid_shape(len(takes))
         canvas = np.empty((rows * self.height, cols * self.width, 3), np.uint8)
-        canvas[:] = (np.array(BACKGROUND) * 255).astype(np.uint8)
+        canvas[:] = (np.array(BACKGROUND) * 200).astype(np.uint8)
         for i, frame in enumerate(takes):
             r, c = divmod(i, cols)
             canvas[r * self.height:(r + 1) * self.height, c * self.width:(c + 1) * self.width] = self.render(frame)
@@ -190,12 +246,13 @@ class AvatarRenderer:
 
     def project(self, points: np.ndarray) -> np.ndarray:
         """Pixel (x, y) of world points in a tile, rows counted from the top."""
+        pts = np.atleast_2d(np.asarray(points, float))
         proj = self.camera.get_projection_matrix(self.width, self.height) @ np.linalg.inv(self.camera_pose)
-        p = np.concatenate([np.atleast_2d(points), np.ones((len(np.atleast_2d(points)), 1))], 1) @ proj.T
+        p = np.concatenate([pts, np.ones((len(pts), 1))], 1) @ proj.T
         ndc = p[:, :3] / p[:, 3:4]
         return np.stack([(ndc[:, 0] + 1) / 2 * self.width, (1 - ndc[:, 1]) / 2 * self.height], 1)
 
     def close(self) -> None:
         if getattr(self, "renderer", None) is not None:
-            self.renderer.delete()
+            delete_offscreen(self.renderer)
             self.renderer = None

@@ -7,10 +7,12 @@ vertex, and a sparse vertex-face sum gives smooth normals. No Python loop over v
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import scipy.sparse as sp
 
-from convodrive.backends.avatar_mesh import (JAW_OPEN_ANGLE, LID_REST_EDGES, SHAPES, Avatar, lid_positions)
+from convodrive.backends.avatar_mesh import LID_REST_EDGES, SHAPES, Avatar, lid_positions
 from convodrive.motion.channels import BLENDSHAPE_INDEX
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.rotations import axis_angle_to_matrix, euler_to_matrix
@@ -19,8 +21,12 @@ from convodrive.motion.skeleton import JOINT_INDEX, REST_POSITIONS, forward_kine
 _SHAPE_COLUMNS = np.array([BLENDSHAPE_INDEX[name] for name in SHAPES])
 _JAW = JOINT_INDEX["jaw"]
 _EYES = (JOINT_INDEX["left_eye_smplhf"], JOINT_INDEX["right_eye_smplhf"])
-GAZE_YAW = 0.55  # radians at eyeLookIn/Out = 1
-GAZE_PITCH = 0.40  # radians at eyeLookUp/Down = 1
+# How the canonical motion ties joints to channels (the procedural generator writes the same):
+# the jaw joint turns 28 degrees about +X (chin down) at jawOpen = 1, and an eye turns 30 degrees
+# of yaw or 25 of pitch when an eyeLook* channel reaches 1.
+JAW_RAD_AT_FULL_OPEN = math.radians(28.0)
+GAZE_YAW = math.radians(30.0)
+GAZE_PITCH = math.radians(25.0)
 
 
 def skinning_matrices(rotations: np.ndarray, positions: np.ndarray) -> np.ndarray:
@@ -72,7 +78,7 @@ class AvatarPoser:
         """Blendshape weights in ``SHAPES`` order; the jaw joint's opening counts as ``jawOpen``."""
         w = np.clip(np.asarray(frame.face, float)[_SHAPE_COLUMNS], 0.0, 1.0)
         jaw_pitch = float(frame.pose[_JAW][0])
-        w[0] = max(w[0], float(np.clip(jaw_pitch / JAW_OPEN_ANGLE, 0.0, 1.0)))
+        w[0] = max(w[0], float(np.clip(jaw_pitch / JAW_RAD_AT_FULL_OPEN, 0.0, 1.0)))
         return w
 
     def lid_edges(self, frame: MotionFrame, eye_rotations: np.ndarray) -> np.ndarray:
@@ -109,4 +115,5 @@ class AvatarPoser:
         tri = verts[self._faces]
         face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # area-weighted
         n = np.asarray(self._vertex_faces @ face_n)
-        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.where(length > 1e-12, n / np.maximum(length, 1e-12), [0.0, 0.0, 1.0])

@@ -84,7 +84,9 @@ class DriveRequest:
     out_dir: Path = Path("convodrive-out")
     seed: int = 0
     samples: int = 1
-    realtime: bool = False
+    realtime: bool | None = None
+    """True: the wall clock; False: a simulated clock; None: real time if any backend is real-time
+    (hardware must be paced at 30 fps), else offline."""
     channels: ChannelMap | None = None
     generator_options: dict[str, Any] = dataclasses.field(default_factory=dict)
     backend_options: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
@@ -101,7 +103,7 @@ class DriveResult:
 def drive(
     request: DriveRequest,
     on_frame: Callable[[int, int], None] | None = None,
-    on_start: Callable[[], None] | None = None,
+    on_start: Callable[[bool], None] | None = None,
 ) -> DriveResult:
     """Run one session end to end and write its report. ``UserError`` for any user mistake."""
     if request.samples < 1:
@@ -110,6 +112,8 @@ def drive(
         raise UserError("name at least one backend with --backend")
     source = AudioSource(request.audio, request.channels)
     config = load_run_config(request.config)
+    backend_classes: dict[str, type[Backend]] = {name: load_plugin(BACKEND_GROUP, name) for name in dict.fromkeys(request.backends)}
+    realtime = request.realtime if request.realtime is not None else any(c.realtime for c in backend_classes.values())
     out_dir = Path(request.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     session = Session(
@@ -118,7 +122,7 @@ def drive(
         duration=source.duration,
         num_frames=source.info.num_motion_frames,
         fps=FPS,
-        offline=not request.realtime,
+        offline=not realtime,
         seed=request.seed,
         num_samples=request.samples,
     )
@@ -129,9 +133,9 @@ def drive(
     seeds = [take_seed(request.seed, i) for i in range(request.samples)]
     # Real time reads audio in 100 ms chunks (the streaming latency); offline in 1 s chunks, which
     # gives the same frames (generators are chunk-invariant) with less per-chunk overhead.
-    chunk_samples = CHUNK_SAMPLES if request.realtime else ANALYSIS_RATE
+    chunk_samples = CHUNK_SAMPLES if realtime else ANALYSIS_RATE
 
-    routes, failed_at_open = _open_backends(request, config, session)
+    routes, failed_at_open = _open_backends(backend_classes, request, config, session)
     total = session.num_frames or 0
 
     def frame_done(index: int) -> None:
@@ -141,11 +145,11 @@ def drive(
     scheduler = Scheduler(
         generator.stream_takes(source.chunks(chunk_samples), seeds),
         routes,
-        realtime=request.realtime,
+        realtime=realtime,
         expected_frames=session.num_frames,
         audio_seconds=source.duration,
         on_frame=frame_done,
-        on_start=on_start,
+        on_start=(lambda: on_start(realtime)) if on_start is not None else None,
     )
     result = scheduler.run()
     outputs = [p for r in routes for p in _safe_outputs(r.backend)]
@@ -173,15 +177,16 @@ def drive(
     return DriveResult(report, report_path, summary_path, outputs)
 
 
-def _open_backends(request: DriveRequest, config: RunConfig, session: Session) -> tuple[list[Route], dict[str, str]]:
+def _open_backends(
+    backend_classes: dict[str, type[Backend]], request: DriveRequest, config: RunConfig, session: Session
+) -> tuple[list[Route], dict[str, str]]:
     """Instantiate and open each backend. A user mistake aborts the run (closing what opened);
     any other fault at open fails that backend alone, and the run goes on without it."""
     routes: list[Route] = []
     failed: dict[str, str] = {}
     retargeters: dict[str, Any] = {}
     try:
-        for name in dict.fromkeys(request.backends):
-            cls: type[Backend] = load_plugin(BACKEND_GROUP, name)
+        for name, cls in backend_classes.items():
             profile = _profile_for(cls, config)
             options: dict[str, Any] = {}
             if profile is not None:

@@ -5,9 +5,11 @@
 - The clock dispatches frame k at the absolute deadline ``t0 + k / fps`` on the monotonic clock, so
   lateness never accumulates into drift. Offline runs use a simulated clock (frame k is at k / fps)
   and go as fast as the slowest consumer allows.
-- Each backend has its own worker thread. In real time it is fed through a latest-value slot: a
-  slow or failing backend drops its own frames and never stalls the clock or the others. Offline
-  it is fed through a small blocking queue, because a file output must receive every frame.
+- Each backend has its own worker thread. In real time a real-time backend (hardware, a live
+  window) is fed through a latest-value slot: a slow or failing backend drops its own frames and
+  never stalls the clock or the others; a file backend is fed through a non-blocking backlog, so
+  it receives every frame, late if it must. Offline every backend is fed through a small blocking
+  queue, because every frame must arrive and there is no wall clock to protect.
 - SIGINT and SIGTERM stop the clock; every backend is still closed, from its own worker, so its
   outputs end complete.
 """
@@ -89,6 +91,40 @@ class LatestSlot:
             return self._items.popleft() if self._items else _END
 
 
+class BacklogSlot:
+    """A deep FIFO that never blocks: a file output in a real-time run gets every frame, late.
+
+    A recorder or a video encoder beside a servo head must not slow the wall clock, nor lose
+    frames while it catches up. Past ``limit`` frames of backlog (5 minutes) the oldest go.
+    """
+
+    def __init__(self, limit: int = 9000) -> None:
+        self._cond = threading.Condition()
+        self._items: collections.deque[Any] = collections.deque()
+        self._limit = limit
+        self._closed = False
+        self.dropped = 0
+
+    def put(self, item: Any) -> None:
+        with self._cond:
+            self._items.append(item)
+            if len(self._items) > self._limit:
+                self._items.popleft()
+                self.dropped += 1
+            self._cond.notify()
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify()
+
+    def get(self) -> Any:
+        with self._cond:
+            while not self._items and not self._closed:
+                self._cond.wait()
+            return self._items.popleft() if self._items else _END
+
+
 class BlockingSlot:
     """A small FIFO for offline runs: every frame is delivered; a slow backend slows the run."""
 
@@ -125,7 +161,13 @@ class BackendWorker(threading.Thread):
     def __init__(self, route: Route, realtime: bool, clock: Callable[[], float]) -> None:
         super().__init__(name=f"backend-{route.backend.name}", daemon=True)
         self.route = route
-        self.slot: LatestSlot | BlockingSlot = LatestSlot() if realtime else BlockingSlot()
+        self.slot: LatestSlot | BacklogSlot | BlockingSlot
+        if not realtime:
+            self.slot = BlockingSlot()
+        elif route.backend.realtime:
+            self.slot = LatestSlot()
+        else:
+            self.slot = BacklogSlot()
         self.stats = BackendStats(route.backend.name)
         self._clock = clock
         self._last_status = "ok"

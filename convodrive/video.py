@@ -43,7 +43,7 @@ class VideoWriter:
         output_params = ["-movflags", "+faststart", "-profile:v", "high"]
         self._writer: Any = imageio_ffmpeg.write_frames(
             str(self._tmp), self.size, fps=fps, codec="libx264", pix_fmt_out="yuv420p", quality=quality,
-            macro_block_size=2, output_params=output_params,
+            macro_block_size=2, output_params=output_params, ffmpeg_log_level="error",
             audio_path=str(audio_path) if audio_path else None, audio_codec="aac" if audio_path else None,
         )
         self._writer.send(None)  # start the generator: ffmpeg launches here

@@ -19,7 +19,9 @@ def test_dialogue_goal_log_matches_the_retargeted_trajectory(tmp_path: Path) -> 
     with start_emulated_head() as emu:
         # A long watchdog: on a busy machine an offline run may pause, and an ease would
         # interleave extra goals; the watchdog itself is tested elsewhere.
-        request = DriveRequest(audio=bundled_dialogue(), backends=("record", "dynamixel"), out_dir=tmp_path,
+        # Offline (simulated clock) so that every frame reaches the head and the comparison is exact;
+        # the real-time run is the demo's, checked in test_demo.py.
+        request = DriveRequest(audio=bundled_dialogue(), backends=("record", "dynamixel"), out_dir=tmp_path, realtime=False,
                                backend_options={"dynamixel": {"port": emu.port, "ease_s": 0.2, "watchdog_s": 5.0,
                                                               "latency_ms": 40}})
         result = drive(request)
@@ -43,7 +45,7 @@ def test_dialogue_goal_log_matches_the_retargeted_trajectory(tmp_path: Path) -> 
 def test_faults_during_a_run_are_named_in_the_run_report(tmp_path: Path) -> None:
     faults = [parse_fault("overload:4@0.3"), parse_fault("vanish:6@0.3+0.5"), parse_fault("corrupt:0.02")]
     with start_emulated_head(faults=faults) as emu:
-        request = DriveRequest(audio=bundled_dialogue(), backends=("dynamixel",), out_dir=tmp_path,
+        request = DriveRequest(audio=bundled_dialogue(), backends=("dynamixel",), out_dir=tmp_path, realtime=False,
                                backend_options={"dynamixel": {"port": emu.port, "ease_s": 0.2, "read_rate": 20}})
         result = drive(request)
         torque = [emu.servo(i).torque for i in range(1, 8)]

@@ -9,6 +9,7 @@ import pytest
 from convodrive.audio.source import DyadicAudio
 from convodrive.behaviour_eval import behaviour_figures
 from convodrive.generators.procedural import ProceduralGenerator
+from convodrive.motion.channels import BLENDSHAPE_INDEX as B
 from tests.procedural_dialogues import make
 
 
@@ -96,3 +97,25 @@ def test_gaze_averts_when_taking_the_turn_and_returns_while_listening(dialogues)
         assert eye[k + 3 : k + 15].max() > 6.0  # looks away as the turn starts
     listening = (clip.vad[:, 1] > 0) & ~speaking
     assert np.median(eye[listening]) < 3.0  # and at the partner while listening
+
+
+def test_blinks_more_while_speaking_than_listening_and_at_turn_starts(dialogues):
+    """Averaged over 12 takes (one analysis), so the comparison of rates is not luck of one seed."""
+    audio = dialogues["alternating"]
+    clips = ProceduralGenerator({"phones": False}).generate(audio, seed=5, num_samples=12)
+    rates = [behaviour_figures(c, audio)["blinks_per_minute"] for c in clips]
+    speaking = float(np.mean([r["self_speaking"] for r in rates]))
+    listening = float(np.mean([r["only_partner"] for r in rates]))
+    assert 15.0 <= speaking <= 35.0
+    assert listening <= 16.0
+    assert speaking >= 2.0 * listening
+    # Most turns self takes start with a blink within the first 300 ms.
+    starts = hits = 0
+    for clip in clips:
+        speaking_mask = clip.vad[:, 0] > 0
+        lids = clip.face[:, B["eyeBlinkLeft"]]
+        for k in range(15, len(speaking_mask) - 10):
+            if speaking_mask[k] and not speaking_mask[k - 15 : k].any():
+                starts += 1
+                hits += bool(lids[k : k + 10].max() > 0.5)
+    assert starts >= 24 and hits >= 0.6 * starts

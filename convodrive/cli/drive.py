@@ -27,8 +27,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed: the same seed gives the same motion (default: 0)")
     p.add_argument("--samples", type=positive_int, default=1, metavar="K", help="generate K takes of the same audio")
     mode = p.add_mutually_exclusive_group()
-    mode.add_argument("--realtime", action="store_true", help="pace frames by the wall clock (for hardware and live windows)")
-    mode.add_argument("--offline", action="store_true", help="simulated clock, as fast as possible (default)")
+    mode.add_argument("--realtime", action="store_true",
+                      help="pace frames by the wall clock (the default when a backend is hardware or a live window)")
+    mode.add_argument("--offline", action="store_true",
+                      help="simulated clock, as fast as possible (the default when every backend writes files)")
     p.add_argument("--channels", type=channel_map, metavar="SELF,OTHER",
                    help="which file channels are self and partner (needed for files with more than 2 channels)")
     p.add_argument("--motion", type=Path, metavar="FILE", help="motion file for the replay generator (.npz or .bvh)")
@@ -54,17 +56,17 @@ def run(args: argparse.Namespace) -> int:
         out_dir=args.out,
         seed=args.seed,
         samples=args.samples,
-        realtime=bool(args.realtime),
+        realtime=True if args.realtime else (False if args.offline else None),
         channels=args.channels,
         generator_options=gen_options,
         backend_options=backend_options,
     )
-    def started() -> None:
-        if request.realtime:
+    def started(realtime: bool) -> None:
+        if realtime:
             sys.stderr.write("convodrive: running in real time at 30 fps (Ctrl-C stops)\n")
             sys.stderr.flush()
 
-    with frame_progress("driving", enabled=not request.realtime) as progress:
+    with frame_progress("driving", enabled=request.realtime is not True) as progress:
         result = drive(request, on_frame=progress, on_start=started)
     print_result(result)
     return 130 if result.report["interrupted"] else 0

@@ -60,6 +60,13 @@ def _tables() -> tuple[np.ndarray, np.ndarray]:
 VISEME_JAW, VISEME_SHAPES = _tables()
 _BLINK = [0.35, 0.85, 1.0, 0.8, 0.5, 0.25, 0.08]
 """Eyelid closure over seven frames: a fast close and a slower reopening (about 230 ms)."""
+BLINKS_PER_MINUTE = {"speaking": 21.0, "listening": 10.0, "silent": 14.0}
+"""People blink more while talking (about 20-26 a minute) than while listening attentively
+(about 10-15), and extra blinks mark the start of their own turn."""
+_TURN_BLINK = 0.75
+"""Chance of a blink just after self starts a turn (within 60-200 ms of the onset)."""
+_END_BLINK = 0.25
+"""Chance of a blink as self's turn ends."""
 
 
 class FaceSynth:
@@ -74,10 +81,11 @@ class FaceSynth:
         self.rand = FrameNoise(seed, 11, dims=6)
         # Event state, carried between batches.
         self._since_blink = 99
+        self._blink_phase = 0.0  # accumulated fraction of the mean inter-blink interval
+        self._blink_due = 1.0  # phase at which the next spontaneous blink fires
+        self._turn_blink_at = -1  # frame of a pending turn-start blink
         self._self_quiet = 99  # frames since self's voice was last active
-        self._other_quiet = 99
         self._prev_self = False
-        self._prev_other = False
         self._gaze = (0.0, 0.0)  # current gaze target (yaw, pitch) radians, 0 = at the partner
         self._avert_until = -1
         self._next_saccade = 0
@@ -144,15 +152,22 @@ class FaceSynth:
             k = first + j
             sp, ls = vs[j] > 0, vo[j] > 0
             self_onset = sp and not self._prev_self and self._self_quiet > 15
-            other_onset = ls and not self._prev_other and self._other_quiet > 15
             self_end = self._prev_self and not sp
-            # Blinks: more often while speaking than listening, and at turn boundaries.
-            rate = 24.0 if sp else (11.0 if ls else 15.0)
-            p = rate / 60.0 / 30.0
+            # Blinks: a renewal process whose rate depends on who talks (fairly regular intervals,
+            # jittered by the variability), plus blinks at turn boundaries.
+            state = "speaking" if sp else ("listening" if ls else "silent")
+            self._blink_phase += BLINKS_PER_MINUTE[state] / 60.0 / 30.0
             self._since_blink += 1
-            if self._since_blink > 9 and (u[j][0] < p or ((self_onset or other_onset or self_end) and u[j][0] < 0.45)):
+            if self_onset and u[j][0] < _TURN_BLINK:
+                self._turn_blink_at = k + 2 + int(4 * u[j][0] / _TURN_BLINK)
+            turn = k == self._turn_blink_at or (self_end and u[j][0] < _END_BLINK)
+            if self._since_blink > 9 and (turn or self._blink_phase >= self._blink_due):
                 blinks[j] = 1.0
                 self._since_blink = 0
+                self._blink_phase = 0.0
+                self._blink_due = 1.0 + min(0.9, 0.45 * v) * (2.0 * u[j][1] - 1.0)
+            if k >= self._turn_blink_at:
+                self._turn_blink_at = -1
             # Gaze: at the partner while listening; averted when taking the turn; saccades.
             yaw, pitch = self._gaze
             if self_onset:
@@ -178,6 +193,5 @@ class FaceSynth:
             self._gaze = (yaw, pitch)
             gaze[j] = self._gaze
             self._self_quiet = 0 if sp else self._self_quiet + 1
-            self._other_quiet = 0 if ls else self._other_quiet + 1
-            self._prev_self, self._prev_other = sp, ls
+            self._prev_self = sp
         return blinks, gaze

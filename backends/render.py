@@ -1,0 +1,241 @@
+"""Backend ``render``: the mesh avatar filmed headless into an mp4 with the session's audio.
+
+It consumes canonical motion (``frame.takes``: one take, or K takes of the same audio laid out
+side by side), poses the procedural avatar, renders offscreen (EGL, else OSMesa) and writes
+``avatar.mp4`` (H.264, yuv420p, 30 fps, audio muxed) plus ``avatar_contact.png``, a contact
+sheet of evenly spaced frames. With ``window: true`` and a display it also shows the frames live.
+
+Options (``backends: {render: {...}}`` in the run config):
+  camera: full | upper | face (default upper)      resolution: "WxH" per take (default 512x512)
+  filename: avatar.mp4                              contact_sheet: avatar_contact.png, or false
+  antialias: false (true = 4x MSAA, ~2.5x slower)   window: false
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from convodrive.atomic import atomic_path
+from convodrive.backends.base import Backend, Session
+from convodrive.backends.render_scene import CAMERAS, AvatarRenderer, grid_shape, parse_resolution
+from convodrive.errors import UserError
+from convodrive.targets import TargetFrame, TargetSpec
+
+_OPTIONS = {"camera", "resolution", "filename", "contact_sheet", "antialias", "window"}
+CONTACT_CELLS = 12
+CONTACT_COLUMNS = 4
+THUMB_WIDTH = 320
+
+
+class ContactSheet:
+    """Evenly spaced thumbnails of a stream of unknown length, in bounded memory.
+
+    Keeps every ``stride``-th frame; when the buffer passes twice the sheet's cells, every other
+    thumbnail is dropped and the stride doubles, so the kept frames stay evenly spread.
+    """
+
+    def __init__(self, cells: int = CONTACT_CELLS) -> None:
+        self.cells = cells
+        self.stride = 1
+        self.kept: list[tuple[int, np.ndarray]] = []
+
+    def offer(self, index: int, image: np.ndarray) -> None:
+        if index % self.stride:
+            return
+        from PIL import Image
+
+        h, w = image.shape[:2]
+        scale = THUMB_WIDTH / w
+        thumb = np.asarray(Image.fromarray(image).resize((THUMB_WIDTH, max(2, round(h * scale))), Image.BILINEAR))
+        self.kept.append((index, thumb))
+        if len(self.kept) > 2 * self.cells:
+            self.kept = self.kept[::2]
+            self.stride *= 2
+
+    def write(self, path: Path, fps: float) -> Path | None:
+        if not self.kept:
+            return None
+        from PIL import Image, ImageDraw
+
+        pick = np.unique(np.linspace(0, len(self.kept) - 1, min(self.cells, len(self.kept))).round().astype(int))
+        thumbs = [self.kept[i] for i in pick]
+        th, tw = thumbs[0][1].shape[:2]
+        cols = min(CONTACT_COLUMNS, len(thumbs))
+        rows = -(-len(thumbs) // cols)
+        pad = 6
+        sheet = Image.new("RGB", (cols * (tw + pad) + pad, rows * (th + pad) + pad), (32, 34, 38))
+        draw = ImageDraw.Draw(sheet)
+        for k, (index, thumb) in enumerate(thumbs):
+            x, y = pad + (k % cols) * (tw + pad), pad + (k // cols) * (th + pad)
+            sheet.paste(Image.fromarray(thumb), (x, y))
+            label = f"{index / fps:6.2f} s"
+            draw.rectangle((x, y + th - 16, x + 62, y + th), fill=(0, 0, 0))
+            draw.text((x + 4, y + th - 14), label, fill=(240, 240, 240))
+        with atomic_path(path) as tmp:
+            sheet.save(tmp, format="PNG")
+        return path
+
+
+def display_available() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+class RenderBackend(Backend):
+    name = "render"
+    description = "Mesh avatar preview: headless pyrender (EGL/OSMesa) to mp4 with audio, K takes in a grid"
+    realtime = False
+    default_profile = None
+
+    def __init__(self, options: dict[str, Any] | None = None) -> None:
+        super().__init__(options)
+        unknown = set(self.options) - _OPTIONS
+        if unknown:
+            raise UserError(f"render: unknown option(s) {', '.join(sorted(unknown))} (known: {', '.join(sorted(_OPTIONS))})")
+        self.camera = str(self.options.get("camera", "upper"))
+        if self.camera not in CAMERAS:
+            raise UserError(f"render: camera {self.camera!r} is not one of {', '.join(CAMERAS)}")
+        self.width, self.height = parse_resolution(self.options.get("resolution", "512x512"))
+        self.filename = str(self.options.get("filename", "avatar.mp4"))
+        if not self.filename.lower().endswith(".mp4"):
+            raise UserError(f"render: filename {self.filename!r} must end in .mp4")
+        sheet = self.options.get("contact_sheet", "avatar_contact.png")
+        self.sheet_name = None if sheet in (False, None, "") else str(sheet)
+        self.antialias = bool(self.options.get("antialias", False))
+        self.want_window = bool(self.options.get("window", False))
+        self.window_note = None
+        if self.want_window and display_available():
+            self.realtime = True  # type: ignore[misc]  # a live window is paced by the wall clock
+        elif self.want_window:
+            self.window_note = "window requested but no display (DISPLAY unset): rendering to file only"
+        self._renderer: AvatarRenderer | None = None
+        self._writer: Any = None
+        self._window: Any = None
+        self._sheet = ContactSheet()
+        self._outputs: list[Path] = []
+        self._frames = 0
+        self._takes = 0
+        self._errors: list[str] = []
+        self._wall = 0.0
+        self._renderer_stats: dict[str, float] = {"frames": 0, "skin_s": 0.0, "gl_s": 0.0}
+
+    def open(self, spec: TargetSpec, session: Session) -> None:
+        """Check that headless GL works and build the avatar; the GL context itself is made on the
+        first ``send``, because an EGL context belongs to the thread that made it current and the
+        scheduler opens backends on one thread and feeds them on another."""
+        from convodrive.backends.avatar_mesh import build_avatar
+        from convodrive.backends.headless_gl import select_platform
+
+        super().open(spec, session)
+        self.out_dir = Path(session.out_dir)
+        self.video_path = self.out_dir / self.filename
+        select_platform()
+        build_avatar()
+
+    def _start(self) -> None:
+        self._renderer = AvatarRenderer(self.width, self.height, self.camera, antialias=self.antialias)
+        if self.realtime:
+            try:
+                from convodrive.backends.live_window import LiveWindow
+
+                self._window = LiveWindow("convodrive avatar")
+            except Exception as exc:  # no Tk, display refused: keep the file output
+                self.window_note = f"live window unavailable ({exc}); rendering to file only"
+
+    def _open_writer(self, takes: int) -> None:
+        from convodrive.video import VideoWriter
+
+        rows, cols = grid_shape(takes)
+        audio = self.session.audio_path if self.session else None
+        self._writer = VideoWriter(self.video_path, cols * self.width, rows * self.height,
+                                   fps=self.session.fps if self.session else 30, audio_path=audio)
+        self._takes = takes
+
+    def send(self, frame: TargetFrame) -> None:
+        if self.session is None:
+            raise RuntimeError("render: send() before open()")
+        t0 = time.perf_counter()
+        if self._renderer is None:
+            self._start()
+        assert self._renderer is not None
+        takes = frame.takes
+        if self._writer is None:
+            self._open_writer(len(takes))
+        if len(takes) != self._takes:  # keep the grid: pad with the first take or drop extras
+            takes = (tuple(takes) + (takes[0],) * self._takes)[: self._takes]
+        image = self._renderer.render_takes(takes)
+        self._writer.append(image)
+        self._sheet.offer(frame.index, image)
+        if self._window is not None:
+            try:
+                self._window.show(image)
+            except Exception as exc:  # window closed by the user: keep filming
+                self.window_note = f"live window closed ({exc})"
+                self._window = None
+        self._frames += 1
+        self._wall += time.perf_counter() - t0
+
+    def close(self) -> None:
+        if self._writer is not None:
+            try:
+                self._outputs.append(self._writer.close())
+            except Exception as exc:
+                self._errors.append(f"video: {exc}")
+                self._writer.abort()
+            self._writer = None
+            if self.sheet_name:
+                fps = self.session.fps if self.session else 30
+                sheet = self._sheet.write(self.out_dir / self.sheet_name, fps)
+                if sheet:
+                    self._outputs.append(sheet)
+        if self._window is not None:
+            self._window.close()
+            self._window = None
+        if self._renderer is not None:
+            self._renderer_stats = dict(self._renderer.stats)
+            try:  # the outputs are complete already; a GL teardown fault must not mask them
+                self._renderer.close()
+            except Exception as exc:
+                self._errors.append(f"gl teardown: {exc.__class__.__name__}")
+            self._renderer = None
+
+    def abort(self) -> None:
+        """Drop the partial video (for callers that stop on an error and want no output)."""
+        if self._writer is not None:
+            self._writer.abort()
+            self._writer = None
+
+    def health(self) -> dict[str, Any]:
+        status = "degraded" if (self._errors or self.window_note) else "ok"
+        return {"status": status, "frames": self._frames, **({"note": self.window_note} if self.window_note else {})}
+
+    def report(self) -> dict[str, Any]:
+        from convodrive.backends.headless_gl import select_platform
+
+        stats = self._renderer.stats if self._renderer else self._renderer_stats
+        rows, cols = grid_shape(max(self._takes, 1))
+        renders = max(stats["frames"], 1)
+        out: dict[str, Any] = {
+            "outputs": [str(p) for p in self._outputs],
+            "frames": self._frames,
+            "takes": self._takes,
+            "grid": [rows, cols],
+            "camera": self.camera,
+            "resolution": [cols * self.width, rows * self.height],
+            "gl_platform": select_platform() if self.session else None,
+            "antialias": self.antialias,
+            "render_fps": round(self._frames / self._wall, 2) if self._wall else None,
+            "skin_ms_per_take": round(1000 * stats["skin_s"] / renders, 3),
+            "gl_ms_per_take": round(1000 * stats["gl_s"] / renders, 3),
+            "errors": self._errors,
+        }
+        if self.window_note:
+            out["note"] = self.window_note
+        return out
+
+    def outputs(self) -> list[Path]:
+        return list(self._outputs)
