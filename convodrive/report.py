@@ -50,7 +50,8 @@ def build_report(result: RunResult, context: dict[str, Any], failed_at_open: dic
         "frames": result.frames,
         "expected_frames": result.expected_frames,
         "wall_seconds": round(result.wall_seconds, 3),
-        "effective_fps": round(result.frames / result.wall_seconds, 2) if result.wall_seconds > 0 else None,
+        "clock_seconds": round(result.clock_seconds, 3),
+        "effective_fps": round(result.frames / result.clock_seconds, 2) if result.clock_seconds > 0 else None,
         "jitter_ms": _percentiles(result.jitter_ms),
         "late_frames": result.late_frames,
         "clock_priority": result.clock_priority,
@@ -65,8 +66,8 @@ def build_report(result: RunResult, context: dict[str, Any], failed_at_open: dic
 def summarize(report: dict[str, Any]) -> str:
     """A few readable lines: the figures a user looks at first."""
     lines = [
-        f"{report['mode']} run: {report['frames']} frames in {report['wall_seconds']:.2f} s "
-        f"({report['effective_fps']} fps effective)" + (" — interrupted" if report["interrupted"] else ""),
+        f"{report['mode']} run: {report['frames']} frames, clock {report['effective_fps']} fps effective; "
+        f"{report['wall_seconds']:.2f} s in all" + (" — interrupted" if report["interrupted"] else ""),
     ]
     jit = report.get("jitter_ms")
     if jit:

@@ -229,6 +229,8 @@ class RunResult:
     frames: int
     expected_frames: int | None
     wall_seconds: float
+    clock_seconds: float
+    """From the first frame's deadline to one period after the last dispatch: the clock's own span."""
     jitter_ms: list[float]
     late_frames: int
     generator_seconds: float
@@ -313,6 +315,7 @@ class Scheduler:
         self._interrupted = False
         self._t0 = 0.0
         self.clock_priority = "normal"
+        self._clock_seconds = 0.0
 
     def request_stop(self) -> None:
         """Stop at the next frame boundary (what SIGINT and SIGTERM do)."""
@@ -348,6 +351,7 @@ class Scheduler:
             frames=frames,
             expected_frames=self.expected_frames,
             wall_seconds=wall,
+            clock_seconds=self._clock_seconds,
             jitter_ms=jitter,
             late_frames=late,
             generator_seconds=self._producer.generator_seconds,
@@ -396,6 +400,9 @@ class Scheduler:
                 self.on_frame(index)
             index += 1
         drift = 0.0
+        if index:
+            end = last_dispatch if self.realtime else time.monotonic()
+            self._clock_seconds = max(end - self._t0, 0.0) + (period if self.realtime else 0.0)
         if self.realtime and index:
             drift = (last_dispatch - self._t0) * self.fps - (index - 1)
         return index, jitter, late, drift

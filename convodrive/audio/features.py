@@ -65,8 +65,10 @@ def raw_frames(padded: np.ndarray, pad_start: int, first: int, count: int) -> di
     k = np.arange(first, first + count)
     # Loudness: RMS over the frame's own samples.
     starts, lengths = frame_edge(k) - pad_start, frame_edge(k + 1) - frame_edge(k)  # 533 or 534
-    sq = np.cumsum(sliding_window_view(padded, 534)[starts].astype(np.float64) ** 2, axis=1)
-    power = np.where(lengths == 534, sq[:, 533], sq[:, 532]) / lengths
+    sq = np.square(sliding_window_view(padded, 534)[starts], dtype=np.float64)
+    # Row sums along the contiguous last axis: the same summation order in every row, however
+    # many rows a batch holds (so chunking cannot change the result).
+    power = (sq[:, :533].sum(axis=1) + np.where(lengths == 534, sq[:, 533], 0.0)) / lengths
     db = 10.0 * np.log10(power + 1e-10)
 
     f0 = np.full(count, 100.0)
@@ -93,8 +95,9 @@ def _pitch(win16: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     win = win16.reshape(len(win16), -1, 2).mean(axis=2)
     n = win.shape[1]
     win = win - _row_sum(win)[:, None] / n
-    spec = _rows_rfft(win, n + lag_max + 8)
-    acf = _rows_irfft(spec.real**2 + spec.imag**2, n + lag_max + 8)[:, : lag_max + 2]
+    size = _FFT_SIZE[n + lag_max + 2]  # a length with small prime factors: 635 took 4x as long
+    spec = _rows_rfft(win, size)
+    acf = _rows_irfft(spec.real**2 + spec.imag**2, size)[:, : lag_max + 2]
     csum = np.concatenate([np.zeros((len(win), 1)), np.cumsum(win**2, axis=1)], axis=1)
     lags = np.arange(lag_max + 2)
     e_head = csum[:, n - lags]
@@ -112,6 +115,23 @@ def _pitch(win16: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rate / (lag + np.clip(shift, -0.5, 0.5)), best
 
 
+class _FastSizes(dict):
+    """Smallest FFT length >= n whose prime factors are 2, 3 and 5 (memoised)."""
+
+    def __missing__(self, n: int) -> int:
+        m = n
+        while True:
+            k = m
+            for p in (2, 3, 5):
+                while k % p == 0:
+                    k //= p
+            if k == 1:
+                self[n] = m
+                return m
+            m += 1
+
+
+_FFT_SIZE = _FastSizes()
 _SPEC_FREQS = np.fft.rfftfreq(SPECTRUM_WINDOW, 1.0 / ANALYSIS_RATE)
 _HANN = np.hanning(SPECTRUM_WINDOW)
 

@@ -70,4 +70,6 @@ def _emulated_servo_head() -> Iterator[dict[str, Any]]:
     from convodrive.backends.dynamixel_emulator import start_emulated_head
 
     with start_emulated_head() as head:
-        yield {"port": head.port}
+        # The emulator answers from a thread of this busy process (the renderer and MuJoCo share
+        # the GIL), so allow its status packets more time than a real bus would need.
+        yield {"port": head.port, "latency_ms": 40}
