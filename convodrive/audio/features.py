@@ -246,7 +246,8 @@ class VoiceTracker:
         periodic = (r["periodicity"] >= p.voicing).tolist()
         st_all = (12.0 * np.log2(np.maximum(r["f0"], 1.0) / 100.0)).tolist()
         f1, low = r["f1_frac"].tolist(), r["low_frac"].tolist()
-        o_vad, o_voiced, o_env, o_st = out["vad"], out["voiced"], out["env"], out["pitch_st"]
+        # Scalar work per frame: plain Python lists and floats here, numpy arrays at the end.
+        o_vad, o_voiced, o_env, o_st, o_laugh = [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n
         for j, i in enumerate(idx.tolist()):
             f = start + j
             db = db_all[i]
@@ -293,8 +294,8 @@ class VoiceTracker:
                 out["accent"][j] = min(1.0, rel / 6.0)
                 self._since_accent = 0
             # Syllable nucleus: a local loudness peak after a dip of at least 8 % of the range.
-            dip = (db - min(db_all[max(i - 6, 0) : i + 1])) / span
-            if self._vad and e > 0.3 and dip > 0.08 and self._since_nucleus > 3 and db >= max(db_all[w0:w1]):
+            dip = (db - min(db_all[max(i - 6, 0) : i + 1])) / span if self._vad and e > 0.3 else 0.0
+            if dip > 0.08 and self._since_nucleus > 3 and db >= max(db_all[w0:w1]):
                 strength = min(1.0, 0.4 + dip)
                 out["nucleus"][j] = strength
                 self._since_nucleus = 0
@@ -306,7 +307,10 @@ class VoiceTracker:
             rise = (db - db_all[max(i - 2, 0)]) / span
             if self._vad and rise > 0.25:
                 out["onset"][j] = min(1.0, rise)
-            out["laugh"][j] = self._laughter()
+            o_laugh[j] = self._laughter()
+        for name, values in (("vad", o_vad), ("voiced", o_voiced), ("env", o_env), ("pitch_st", o_st),
+                             ("laugh", o_laugh)):
+            out[name] = np.array(values, float)
         self._next = end
         # Keep only the history later frames still look at.
         keep_from = max(0, end - self._offset - _HISTORY)
@@ -324,8 +328,8 @@ class VoiceTracker:
         band fractions vary by 0.15 or more); "ha ha ha" keeps them within a few hundredths.
         """
         score = 0.0
-        last = self._nuclei[-5:]
-        if len(last) == 5 and last[-1][0] - last[0][0] <= 36 and self._since_nucleus == 0:
+        last = self._nuclei[-5:] if self._since_nucleus == 0 else ()
+        if len(last) == 5 and last[-1][0] - last[0][0] <= 36:
             gaps = np.diff([t for t, _, _ in last])
             mean = float(gaps.mean())
             same_vowel = float(np.std([n[1] for n in last]) + np.std([n[2] for n in last]))
