@@ -55,60 +55,31 @@ class Route:
     """Routes with equal keys share one retargeting per frame."""
 
 
-class LatestSlot:
-    """A mailbox that keeps only the newest frames and never blocks the clock.
+class DropOldestSlot:
+    """A mailbox that never blocks the clock: past ``capacity`` unread frames the oldest go.
 
-    It holds at most ``depth`` unread frames; a ``put`` beyond that discards the oldest (counted as
-    dropped). Depth 2 rather than 1 lets a backend that keeps up absorb the two frames the clock
-    sends back to back after the OS held it past a deadline, while a slow backend still skips to
-    the newest frame. ``close`` lets the reader take what is left, then the end of the run.
+    Two sizes serve two kinds of backend in a real-time run. A real-time backend (hardware, a live
+    window) gets ``LATEST_CAPACITY``: it always moves to the newest frame, and a slow one skips
+    frames; 2 rather than 1 lets a backend that keeps up absorb the two frames the clock sends
+    back to back after the OS held it past a deadline. A file backend (recorder, video) gets
+    ``BACKLOG_CAPACITY``: it receives every frame, late if it must, without slowing the clock.
+    ``close`` lets the reader take what is left, then the end of the run.
     """
 
-    def __init__(self, depth: int = 2) -> None:
+    LATEST_CAPACITY = 2
+    BACKLOG_CAPACITY = 9000  # 5 minutes at 30 fps
+
+    def __init__(self, capacity: int) -> None:
         self._cond = threading.Condition()
         self._items: collections.deque[Any] = collections.deque()
-        self._depth = depth
+        self._capacity = capacity
         self._closed = False
         self.dropped = 0
 
     def put(self, item: Any) -> None:
         with self._cond:
             self._items.append(item)
-            if len(self._items) > self._depth:
-                self._items.popleft()
-                self.dropped += 1
-            self._cond.notify()
-
-    def close(self) -> None:
-        with self._cond:
-            self._closed = True
-            self._cond.notify()
-
-    def get(self) -> Any:
-        with self._cond:
-            while not self._items and not self._closed:
-                self._cond.wait()
-            return self._items.popleft() if self._items else _END
-
-
-class BacklogSlot:
-    """A deep FIFO that never blocks: a file output in a real-time run gets every frame, late.
-
-    A recorder or a video encoder beside a servo head must not slow the wall clock, nor lose
-    frames while it catches up. Past ``limit`` frames of backlog (5 minutes) the oldest go.
-    """
-
-    def __init__(self, limit: int = 9000) -> None:
-        self._cond = threading.Condition()
-        self._items: collections.deque[Any] = collections.deque()
-        self._limit = limit
-        self._closed = False
-        self.dropped = 0
-
-    def put(self, item: Any) -> None:
-        with self._cond:
-            self._items.append(item)
-            if len(self._items) > self._limit:
+            if len(self._items) > self._capacity:
                 self._items.popleft()
                 self.dropped += 1
             self._cond.notify()
@@ -161,13 +132,13 @@ class BackendWorker(threading.Thread):
     def __init__(self, route: Route, realtime: bool, clock: Callable[[], float]) -> None:
         super().__init__(name=f"backend-{route.backend.name}", daemon=True)
         self.route = route
-        self.slot: LatestSlot | BacklogSlot | BlockingSlot
+        self.slot: DropOldestSlot | BlockingSlot
         if not realtime:
             self.slot = BlockingSlot()
         elif route.backend.realtime:
-            self.slot = LatestSlot()
+            self.slot = DropOldestSlot(DropOldestSlot.LATEST_CAPACITY)
         else:
-            self.slot = BacklogSlot()
+            self.slot = DropOldestSlot(DropOldestSlot.BACKLOG_CAPACITY)
         self.stats = BackendStats(route.backend.name)
         self._clock = clock
         self._last_status = "ok"

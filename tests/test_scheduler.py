@@ -11,7 +11,7 @@ import pytest
 from bench.bench_scheduler import CountingBackend, FailingBackend, SlowBackend, neutral_frames, run_bench
 from convodrive.backends.base import Session
 from convodrive.report import build_report, summarize
-from convodrive.scheduler import LatestSlot, Route, Scheduler
+from convodrive.scheduler import DropOldestSlot, Route, Scheduler
 
 
 def _open(backends, tmp_path: Path, offline: bool):
@@ -72,7 +72,7 @@ def test_generator_error_reaches_the_caller_and_backends_still_close(tmp_path: P
 
 
 def test_latest_slot_keeps_the_newest_and_counts_drops() -> None:
-    slot = LatestSlot(depth=2)
+    slot = DropOldestSlot(DropOldestSlot.LATEST_CAPACITY)
     for i in range(5):
         slot.put(i)
     slot.close()
@@ -80,6 +80,19 @@ def test_latest_slot_keeps_the_newest_and_counts_drops() -> None:
     assert slot.dropped == 3
     end = slot.get()
     assert end not in (3, 4) and slot.get() is end  # the end marker follows the last frame
+
+
+def test_file_backends_in_a_real_time_run_get_every_frame(tmp_path: Path) -> None:
+    """A recorder beside a servo head: the head skips frames it cannot keep up with, the file does not."""
+    head = SlowBackend({"name": "head", "delay": 0.1})
+    head.realtime = True
+    recorder = SlowBackend({"name": "recorder", "delay": 0.05})
+    recorder.realtime = False
+    frames = 30
+    result = Scheduler(neutral_frames(frames), _open([head, recorder], tmp_path, False), realtime=True).run()
+    assert recorder.indices == list(range(frames))
+    assert len(head.indices) < frames and head.indices[-1] == frames - 1
+    assert abs(result.drift_frames) < 1.0
 
 
 def test_report_has_the_figures_and_a_readable_summary(tmp_path: Path) -> None:
