@@ -75,6 +75,7 @@ def _burn(stop_at: float) -> None:
 
 def run_bench(seconds: float, load: bool = True) -> dict[str, Any]:
     frames = int(round(seconds * FPS))
+    load_before = os.getloadavg()
     backends = [CountingBackend({"name": "fast_a"}), CountingBackend({"name": "fast_b"}), SlowBackend({"name": "slow", "delay": 0.2})]
     with tempfile.TemporaryDirectory() as tmp:
         session = Session(out_dir=Path(tmp), offline=False, num_frames=frames)
@@ -99,6 +100,8 @@ def run_bench(seconds: float, load: bool = True) -> dict[str, Any]:
         "frames": result.frames,
         "cpu_load_process": load,
         "cores": os.cpu_count(),
+        "load_average_before_after": [round(load_before[0], 2), round(os.getloadavg()[0], 2)],
+        "clock_priority": result.clock_priority,
         "jitter_ms": report["jitter_ms"],
         "drift_frames": report["drift_frames"],
         "late_frames": result.late_frames,
