@@ -26,10 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from convodrive.backends import dynamixel_table as dt
-from convodrive.backends.dynamixel_bus import DynamixelBus, Motor
-from convodrive.backends.safety import RawMap
-from convodrive.backends.servo_base import PortLost, ServoBackend
+from convodrive.backends.servo import dynamixel_table as dt
+from convodrive.backends.servo.dynamixel_bus import DynamixelBus, Motor
+from convodrive.backends.servo.safety import RawMap
+from convodrive.backends.servo.servo_base import PortLost, ServoBackend
 from convodrive.errors import UserError
 from convodrive.targets import TargetSpec
 

@@ -26,9 +26,9 @@ from typing import Any
 import numpy as np
 import serial
 
-from convodrive.backends import maestro_protocol as mp
-from convodrive.backends.safety import RawMap
-from convodrive.backends.servo_base import PortLost, ServoBackend, open_error
+from convodrive.backends.servo import maestro_protocol as mp
+from convodrive.backends.servo.safety import RawMap
+from convodrive.backends.servo.servo_base import PortLost, ServoBackend, open_error
 from convodrive.errors import UserError
 from convodrive.targets import TargetSpec
 

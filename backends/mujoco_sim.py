@@ -108,8 +108,8 @@ class MujocoBackend(Backend):
     # -- setup -----------------------------------------------------------------------------
     def open(self, spec: TargetSpec, session: Session) -> None:
         super().open(spec, session)
-        from convodrive.sims.loader import compile_spec, fix_root, load_spec
-        from convodrive.sims.gl import select_gl
+        from convodrive.mjcf import compile_spec, fix_root, load_spec
+        from convodrive.mujoco_gl import select_gl
 
         import mujoco
 

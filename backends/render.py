@@ -22,7 +22,7 @@ import numpy as np
 
 from convodrive.atomic import atomic_path
 from convodrive.backends.base import Backend, Session
-from convodrive.backends.render_scene import CAMERAS, AvatarRenderer, grid_shape, parse_resolution
+from convodrive.backends.avatar.render_scene import CAMERAS, AvatarRenderer, grid_shape, parse_resolution
 from convodrive.errors import UserError
 from convodrive.targets import TargetFrame, TargetSpec
 
@@ -127,8 +127,8 @@ class RenderBackend(Backend):
         """Check that headless GL works and build the avatar; the GL context itself is made on the
         first ``send``, because an EGL context belongs to the thread that made it current and the
         scheduler opens backends on one thread and feeds them on another."""
-        from convodrive.backends.avatar_mesh import build_avatar
-        from convodrive.backends.headless_gl import select_platform
+        from convodrive.backends.avatar.avatar_mesh import build_avatar
+        from convodrive.backends.avatar.pyrender_gl import select_platform
 
         super().open(spec, session)
         self.out_dir = Path(session.out_dir)
@@ -140,7 +140,7 @@ class RenderBackend(Backend):
         self._renderer = AvatarRenderer(self.width, self.height, self.camera, antialias=self.antialias)
         if self.realtime:
             try:
-                from convodrive.backends.live_window import LiveWindow
+                from convodrive.backends.avatar.live_window import LiveWindow
 
                 self._window = LiveWindow("convodrive avatar")
             except Exception as exc:  # no Tk, display refused: keep the file output
@@ -214,7 +214,7 @@ class RenderBackend(Backend):
         return {"status": status, "frames": self._frames, **({"note": self.window_note} if self.window_note else {})}
 
     def report(self) -> dict[str, Any]:
-        from convodrive.backends.headless_gl import select_platform
+        from convodrive.backends.avatar.pyrender_gl import select_platform
 
         stats = self._renderer.stats if self._renderer else self._renderer_stats
         rows, cols = grid_shape(max(self._takes, 1))

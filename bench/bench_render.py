@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from convodrive.backends.render_scene import AvatarRenderer, parse_resolution
+from convodrive.backends.avatar.render_scene import AvatarRenderer, parse_resolution
 from convodrive.motion.channels import BLENDSHAPE_INDEX
 from convodrive.motion.clip import MotionClip
 from convodrive.motion.skeleton import JOINT_INDEX
@@ -68,7 +68,7 @@ def main() -> None:
         t = time.perf_counter()
         renderer.poser.pose(clip.frame(i))
         skin.append(time.perf_counter() - t)
-    from convodrive.backends.headless_gl import select_platform
+    from convodrive.backends.avatar.pyrender_gl import select_platform
 
     ms = np.array(per_frame) * 1000
     result = {

@@ -24,11 +24,11 @@ import numpy as np
 
 from convodrive.backends.base import Session
 from convodrive.backends.dynamixel import HEALTH_REGISTERS, DynamixelBackend
-from convodrive.backends.dynamixel_bus import DynamixelBus, Motor
-from convodrive.backends.dynamixel_emulator import start_emulated_head
-from convodrive.backends.dynamixel_table import model
+from convodrive.backends.servo.dynamixel_bus import DynamixelBus, Motor
+from convodrive.backends.servo.dynamixel_emulator import start_emulated_head
+from convodrive.backends.servo.dynamixel_table import model
 from convodrive.backends.maestro import MaestroBackend
-from convodrive.backends.maestro_emulator import start_emulated_maestro
+from convodrive.backends.servo.maestro_emulator import start_emulated_maestro
 from convodrive.retargeting import load_profile
 from convodrive.targets import TargetFrame
 

@@ -17,7 +17,7 @@ from convodrive.errors import InputFileError
 from convodrive.motion.rotations import axis_angle_to_matrix
 from convodrive.motion.skeleton import JOINT_INDEX, forward_kinematics
 from convodrive.retargeting.profile import IKConfig, RobotProfile
-from convodrive.sims.loader import hinge_qpos_addresses, load_model
+from convodrive.mjcf import hinge_qpos_addresses, load_model
 
 import mink  # noqa: E402  (after the loader, which picks the GL platform before mujoco loads)
 import mujoco  # noqa: E402

@@ -12,7 +12,7 @@ from pathlib import Path
 import dynamixel_sdk as sdk
 import yaml
 
-from convodrive.backends.dynamixel_emulator import DynamixelEmulator, start_emulated_head
+from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, start_emulated_head
 from convodrive.cli.main import main
 from convodrive.cli.servo import calibrate, set_joint_limits
 from convodrive.retargeting.profile import resolve_profile_path

@@ -11,7 +11,7 @@ import pytest
 
 from convodrive.backends.base import Session
 from convodrive.backends.dynamixel import DynamixelBackend
-from convodrive.backends.dynamixel_emulator import DynamixelEmulator, start_emulated_head
+from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, start_emulated_head
 from convodrive.errors import UserError
 from convodrive.retargeting import load_profile
 from convodrive.targets import TargetFrame

@@ -10,8 +10,8 @@ import dynamixel_sdk as sdk
 import pytest
 import serial
 
-from convodrive.backends import dynamixel_packet as dp
-from convodrive.backends.dynamixel_emulator import DynamixelEmulator, parse_fault
+from convodrive.backends.servo import dynamixel_packet as dp
+from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, parse_fault
 from convodrive.errors import UserError
 
 

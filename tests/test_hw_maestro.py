@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import serial
 
-from convodrive.backends import maestro_protocol as mp
+from convodrive.backends.servo import maestro_protocol as mp
 from convodrive.backends.base import Session
 from convodrive.backends.maestro import MaestroBackend
-from convodrive.backends.maestro_emulator import MaestroEmulator, start_emulated_maestro
+from convodrive.backends.servo.maestro_emulator import MaestroEmulator, start_emulated_maestro
 from convodrive.errors import UserError
 from convodrive.retargeting import load_profile
 from convodrive.targets import TargetFrame

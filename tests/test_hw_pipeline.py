@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from convodrive.backends import dynamixel_packet as dp
-from convodrive.backends.dynamixel_emulator import parse_fault, start_emulated_head
+from convodrive.backends.servo import dynamixel_packet as dp
+from convodrive.backends.servo.dynamixel_emulator import parse_fault, start_emulated_head
 from convodrive.motion.npz import load_clip
 from convodrive.pipeline import DriveRequest, drive
 from convodrive.retargeting import Retargeter, load_profile

@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from convodrive.backends.safety import Ease, RawMap, Refused, SafetyGuard
+from convodrive.backends.servo.safety import Ease, RawMap, Refused, SafetyGuard
 from convodrive.targets import TargetSpec
 
 finite = st.floats(-3.0, 3.0, allow_nan=False)

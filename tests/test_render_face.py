@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from convodrive.backends.avatar_mesh import MAX_INFLUENCES, MOUTH_HALF_WIDTH, MOUTH_Y, build_avatar
-from convodrive.backends.skinning import JAW_RAD_AT_FULL_OPEN, AvatarPoser, skinning_matrices
+from convodrive.backends.avatar.avatar_mesh import MAX_INFLUENCES, MOUTH_HALF_WIDTH, MOUTH_Y, build_avatar
+from convodrive.backends.avatar.skinning import JAW_RAD_AT_FULL_OPEN, AvatarPoser, skinning_matrices
 from convodrive.motion.channels import BLENDSHAPE_INDEX
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.rotations import axis_angle_to_matrix
@@ -17,7 +17,7 @@ SIZE = 192
 
 @pytest.fixture(scope="module")
 def face_renderer():
-    from convodrive.backends.render_scene import AvatarRenderer
+    from convodrive.backends.avatar.render_scene import AvatarRenderer
 
     r = AvatarRenderer(SIZE, SIZE, camera="face")
     yield r

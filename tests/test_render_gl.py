@@ -12,8 +12,8 @@ import pytest
 
 RENDER_ONE = """
 import sys, numpy as np
-from convodrive.backends.render_scene import AvatarRenderer
-from convodrive.backends.headless_gl import select_platform
+from convodrive.backends.avatar.render_scene import AvatarRenderer
+from convodrive.backends.avatar.pyrender_gl import select_platform
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.channels import BLENDSHAPE_INDEX
 f = MotionFrame.neutral()
@@ -45,7 +45,7 @@ def test_osmesa_renders_the_same_avatar_as_egl(tmp_path):
 def test_falls_back_to_osmesa_when_egl_is_broken(tmp_path):
     """With no EGL vendor library (glvnd finds none), the automatic choice lands on OSMesa."""
     env = {"__EGL_VENDOR_LIBRARY_FILENAMES": str(tmp_path / "none.json")}
-    probe = subprocess.run([sys.executable, "-c", "from convodrive.backends.headless_gl import _probe; "
+    probe = subprocess.run([sys.executable, "-c", "from convodrive.backends.avatar.pyrender_gl import _probe; "
                             "import json; print(json.dumps(_probe('egl')))"],
                            env={**os.environ, **env}, capture_output=True, text=True, timeout=120)
     if json.loads(probe.stdout.strip().splitlines()[-1]) is None:
@@ -55,7 +55,7 @@ def test_falls_back_to_osmesa_when_egl_is_broken(tmp_path):
 
 
 def test_numpy2_alias_is_in_place_after_import():
-    from convodrive.backends.headless_gl import import_pyrender
+    from convodrive.backends.avatar.pyrender_gl import import_pyrender
 
     pyrender = import_pyrender()
     mesh = pyrender.Mesh([pyrender.Primitive(positions=np.eye(3), indices=np.array([[0, 1, 2]]))])
@@ -64,7 +64,7 @@ def test_numpy2_alias_is_in_place_after_import():
 
 def test_closing_one_renderer_leaves_other_contexts_alive():
     """pyrender's delete() would eglTerminate the process-wide display; ours must not."""
-    from convodrive.backends.render_scene import AvatarRenderer
+    from convodrive.backends.avatar.render_scene import AvatarRenderer
     from convodrive.motion.clip import MotionFrame
 
     first = AvatarRenderer(48, 48, "face")

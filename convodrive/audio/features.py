@@ -92,16 +92,21 @@ def _pitch(win16: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     rate = ANALYSIS_RATE // 2
     lag_min, lag_max = int(rate / _F0_MAX), int(math.ceil(rate / _F0_MIN))
-    win = win16.reshape(len(win16), -1, 2).mean(axis=2)
+    win = 0.5 * (win16[:, 0::2] + win16[:, 1::2])
     n = win.shape[1]
     win = win - _row_sum(win)[:, None] / n
     size = _FFT_SIZE[n + lag_max + 2]  # a length with small prime factors: 635 took 4x as long
     spec = _rows_rfft(win, size)
     acf = _rows_irfft(spec.real**2 + spec.imag**2, size)[:, : lag_max + 2]
-    csum = np.concatenate([np.zeros((len(win), 1)), np.cumsum(win**2, axis=1)], axis=1)
-    lags = np.arange(lag_max + 2)
-    e_head = csum[:, n - lags]
-    e_tail = csum[:, -1:] - csum[:, lags]
+    # Energy of the overlapping parts at each lag: the whole window less its last (head) or first
+    # (tail) ``lag`` samples; only the first and last lag_max + 1 running sums are needed.
+    sq = win**2
+    total = _row_sum(sq)[:, None]
+    m = lag_max + 2
+    first = np.concatenate([np.zeros((len(win), 1)), np.cumsum(sq[:, : m - 1], axis=1)], axis=1)
+    last = np.concatenate([np.zeros((len(win), 1)), np.cumsum(sq[:, : n - m : -1], axis=1)], axis=1)
+    e_head = total - last
+    e_tail = total - first
     nac = acf / np.sqrt(e_head * e_tail + 1e-12)
     band = nac[:, lag_min : lag_max + 1]
     best = band.max(axis=1)
@@ -160,8 +165,9 @@ def _spectral_shape(win16: np.ndarray) -> tuple[np.ndarray, ...]:
 
 
 def _row_sum(x: np.ndarray) -> np.ndarray:
-    """Sum along each row in a fixed sequential order (see ``_spectral_shape``)."""
-    return np.cumsum(x, axis=1)[:, -1]
+    """Sum along each row, in an order that does not depend on the number of rows (see
+    ``_spectral_shape``): each C-contiguous row is reduced on its own by the same pairwise loop."""
+    return np.add.reduce(np.ascontiguousarray(x), axis=1)
 
 
 def _rows_irfft(x: np.ndarray, n: int) -> np.ndarray:
@@ -330,10 +336,16 @@ class VoiceTracker:
         score = 0.0
         last = self._nuclei[-5:] if self._since_nucleus == 0 else ()
         if len(last) == 5 and last[-1][0] - last[0][0] <= 36:
-            gaps = np.diff([t for t, _, _ in last])
-            mean = float(gaps.mean())
-            same_vowel = float(np.std([n[1] for n in last]) + np.std([n[2] for n in last]))
-            if 4 <= mean <= 8.5 and float(gaps.std()) <= 0.15 * mean and same_vowel < 0.08:
+            gaps = [b[0] - a[0] for a, b in zip(last, last[1:])]
+            mean = sum(gaps) / 4.0
+            same_vowel = _spread([n[1] for n in last]) + _spread([n[2] for n in last])
+            if 4 <= mean <= 8.5 and _spread(gaps) <= 0.15 * mean and same_vowel < 0.08:
                 score = 1.0
         self._laugh = max(score, self._laugh * 0.93)
         return self._laugh
+
+
+def _spread(values: list[float]) -> float:
+    """Population standard deviation of a few numbers (numpy's costs more than the arithmetic)."""
+    mean = sum(values) / len(values)
+    return math.sqrt(sum((v - mean) ** 2 for v in values) / len(values))

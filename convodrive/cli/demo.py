@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
 @contextlib.contextmanager
 def _emulated_servo_head() -> Iterator[dict[str, Any]]:
     """Start the stateful Dynamixel emulator on a pty and yield the backend options to reach it."""
-    from convodrive.backends.dynamixel_emulator import start_emulated_head
+    from convodrive.backends.servo.dynamixel_emulator import start_emulated_head
 
     with start_emulated_head() as head:
         # The emulator answers from a thread of this busy process (the renderer and MuJoCo share

@@ -68,7 +68,7 @@ def _serve(emulator: object, describe: str) -> int:
 
 
 def run_dynamixel(args: argparse.Namespace) -> int:
-    from convodrive.backends.dynamixel_emulator import DynamixelEmulator, parse_fault
+    from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, parse_fault
 
     ids = parse_ids(args.ids)
     faults = [parse_fault(f) for f in args.fault]
@@ -80,9 +80,9 @@ def run_dynamixel(args: argparse.Namespace) -> int:
 
 
 def run_maestro(args: argparse.Namespace) -> int:
-    from convodrive.backends import maestro_protocol as mp
-    from convodrive.backends.dynamixel_emulator import split_fault
-    from convodrive.backends.maestro_emulator import MaestroEmulator
+    from convodrive.backends.servo import maestro_protocol as mp
+    from convodrive.backends.servo.dynamixel_emulator import split_fault
+    from convodrive.backends.servo.maestro_emulator import MaestroEmulator
 
     emu = MaestroEmulator(args.channels, link=args.link)
     actions = []

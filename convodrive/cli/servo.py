@@ -50,7 +50,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 # ----------------------------------------------------------------------------- scan
 def scan(port: str, baudrates: list[int]) -> list[tuple[int, int, int, int]]:
     """(baudrate, id, model number, firmware) for every servo that answers a broadcast ping."""
-    from convodrive.backends.dynamixel_bus import DynamixelBus
+    from convodrive.backends.servo.dynamixel_bus import DynamixelBus
 
     found = []
     for baud in baudrates:
@@ -64,7 +64,7 @@ def scan(port: str, baudrates: list[int]) -> list[tuple[int, int, int, int]]:
 
 
 def run_scan(args: argparse.Namespace) -> int:
-    from convodrive.backends.dynamixel_table import model_name
+    from convodrive.backends.servo.dynamixel_table import model_name
 
     rates = list(STANDARD_BAUDRATES) if args.all_baudrates else (args.baudrate or [1_000_000])
     found = scan(args.port, rates)
@@ -88,8 +88,8 @@ def _profile(config: str) -> tuple[Path, Any, dict[str, Any]]:
 
 
 def _bus(options: dict[str, Any], port: str | None):  # type: ignore[no-untyped-def]
-    from convodrive.backends import dynamixel_table as dt
-    from convodrive.backends.dynamixel_bus import DynamixelBus, Motor
+    from convodrive.backends.servo import dynamixel_table as dt
+    from convodrive.backends.servo.dynamixel_bus import DynamixelBus, Motor
 
     default = dt.model(str(options.get("model", "xl330")))
     motors = [Motor(name, int(j["id"]), dt.model(j["model"]) if j.get("model") else default)

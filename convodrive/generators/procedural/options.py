@@ -16,7 +16,7 @@ class ProceduralOptions:
     """How much takes differ: random jitter of timing, amplitude and choice (0 = least)."""
     phones: bool = True
     """Recognise English phones with pocketsphinx for the visemes; False uses the spectral fallback
-    only (any language, and about ten times faster)."""
+    only (any language, and about three times faster)."""
     gestures: bool = True
     """Beat gestures of the arms and hands on stressed syllables."""
     vad_on_db: float = -40.0

@@ -15,11 +15,11 @@ from typing import Any, Iterator, Sequence
 
 import numpy as np
 
-from convodrive.backends import avatar_shader
-from convodrive.backends.avatar_mesh import MATERIALS, build_avatar
-from convodrive.backends.headless_gl import delete_offscreen, import_pyrender
-from convodrive.backends.mesh_build import smoothstep
-from convodrive.backends.skinning import AvatarPoser
+from convodrive.backends.avatar import avatar_shader
+from convodrive.backends.avatar.avatar_mesh import MATERIALS, build_avatar
+from convodrive.backends.avatar.pyrender_gl import delete_offscreen, import_pyrender
+from convodrive.backends.avatar.mesh_build import smoothstep
+from convodrive.backends.avatar.skinning import AvatarPoser
 from convodrive.errors import UserError
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.skeleton import REST_POSITIONS

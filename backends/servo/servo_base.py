@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from convodrive.backends.base import Backend, Session
-from convodrive.backends.safety import Ease, RawMap, Refused, SafetyGuard, Watchdog
+from convodrive.backends.servo.safety import Ease, RawMap, Refused, SafetyGuard, Watchdog
 from convodrive.errors import UserError
 from convodrive.targets import TargetFrame, TargetSpec
 

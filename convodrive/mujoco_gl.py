@@ -10,21 +10,12 @@ with the reason kept for the run report; physics never depends on it.
 from __future__ import annotations
 
 import os
-import subprocess
 import sys
+
+from convodrive.headless_gl import CANDIDATES, probe_in_child
 
 _PROBE = "import mujoco; c = mujoco.GLContext(16, 16); c.make_current(); c.free()"
 _choice: tuple[str | None, str] | None = None
-
-
-def _works(platform: str) -> tuple[bool, str]:
-    env = dict(os.environ, MUJOCO_GL=platform, PYOPENGL_PLATFORM=platform)
-    try:
-        proc = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, timeout=60)
-    except (OSError, subprocess.TimeoutExpired) as exc:
-        return False, str(exc)
-    lines = proc.stderr.strip().splitlines()
-    return proc.returncode == 0, lines[-1] if lines else f"exit {proc.returncode}"
 
 
 def _rebind(platform: str) -> None:
@@ -58,9 +49,9 @@ def select_gl() -> tuple[str | None, str]:
         _choice = (explicit, "set by the environment")
         return _choice
     failures = []
-    for platform in ("egl", "osmesa"):
-        ok, why = _works(platform)
-        if ok:
+    for platform in CANDIDATES:
+        why = probe_in_child(platform, _PROBE)
+        if why is None:
             os.environ["MUJOCO_GL"] = platform
             os.environ.setdefault("PYOPENGL_PLATFORM", platform)
             if late:

@@ -20,8 +20,8 @@ from typing import Any
 import dynamixel_sdk as sdk
 import serial
 
-from convodrive.backends.dynamixel_table import ControlTable, Model, Register, decode, encode
-from convodrive.backends.servo_base import PortLost, open_error
+from convodrive.backends.servo.dynamixel_table import ControlTable, Model, Register, decode, encode
+from convodrive.backends.servo.servo_base import PortLost, open_error
 from convodrive.errors import UserError
 
 PKT_ID, PKT_ERROR, PKT_PARAMETER0 = 4, 8, 9  # status packet offsets (PARAMETER0 after the error byte)

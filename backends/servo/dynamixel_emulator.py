@@ -18,9 +18,9 @@ import threading
 import time
 from typing import Callable, Iterable
 
-from convodrive.backends import dynamixel_packet as dp
-from convodrive.backends.dynamixel_table import Model, decode, encode, model as lookup_model
-from convodrive.backends.pty_server import PtyServer
+from convodrive.backends.servo import dynamixel_packet as dp
+from convodrive.backends.servo.dynamixel_table import Model, decode, encode, model as lookup_model
+from convodrive.backends.servo.pty_server import PtyServer
 from convodrive.errors import UserError
 
 Clock = Callable[[], float]

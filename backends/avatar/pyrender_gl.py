@@ -14,14 +14,11 @@ pyrender with ``--no-deps`` next to PyOpenGL>=3.1.7; its offscreen path works th
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 from types import ModuleType
 from typing import Any
 
 from convodrive.errors import UserError
-
-CANDIDATES: tuple[str, ...] = ("egl", "osmesa")
+from convodrive.headless_gl import CANDIDATES, loaded_opengl_platform, probe_in_child
 
 _PROBE = """
 import numpy as np
@@ -32,7 +29,7 @@ r = pyrender.OffscreenRenderer(16, 16)
 s = pyrender.Scene(bg_color=[0.0, 1.0, 0.0, 1.0])
 s.add(pyrender.PerspectiveCamera(yfov=1.0))
 color, _ = r.render(s)
-from convodrive.backends.headless_gl import delete_offscreen
+from convodrive.backends.avatar.pyrender_gl import delete_offscreen
 delete_offscreen(r)
 assert color.shape == (16, 16, 3) and color[8, 8, 1] > 200, "offscreen render returned no image"
 """
@@ -42,15 +39,7 @@ _chosen: str | None = None
 
 def _probe(platform: str, timeout: float = 60.0) -> str | None:
     """Render 16x16 in a child process under ``platform``; None when it works, else the reason."""
-    env = dict(os.environ, PYOPENGL_PLATFORM=platform)
-    try:
-        proc = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        return "timed out"
-    if proc.returncode == 0:
-        return None
-    lines = [ln.strip() for ln in proc.stderr.strip().splitlines() if ln.strip()]
-    return lines[-1] if lines else f"exit code {proc.returncode}"
+    return probe_in_child(platform, _PROBE, timeout)
 
 
 def _probe_here(platform: str) -> str | None:
@@ -63,23 +52,12 @@ def _probe_here(platform: str) -> str | None:
     return None
 
 
-def _platform_of_loaded_opengl() -> str | None:
-    """The platform an already-imported PyOpenGL is bound to (e.g. by MuJoCo's EGL context)."""
-    if "OpenGL.platform" not in sys.modules:
-        return None
-    name = type(sys.modules["OpenGL.platform"].PLATFORM).__name__.lower()
-    for platform in ("egl", "osmesa", "glx"):
-        if platform in name:
-            return platform
-    return name
-
-
 def select_platform() -> str:
     """Choose and set ``PYOPENGL_PLATFORM`` for this process; raise one ``UserError`` line if none works."""
     global _chosen
     if _chosen is not None:
         return _chosen
-    loaded = _platform_of_loaded_opengl()
+    loaded = loaded_opengl_platform()
     if loaded is not None:
         if loaded not in CANDIDATES:
             raise UserError(

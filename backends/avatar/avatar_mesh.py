@@ -15,7 +15,7 @@ import functools
 import numpy as np
 import scipy.sparse as sp
 
-from convodrive.backends.mesh_build import (chain_weights, ellipsoid, grid_faces, loft, normalize,
+from convodrive.backends.avatar.mesh_build import (chain_weights, ellipsoid, grid_faces, loft, normalize,
                                             orient_outward, rigid_weights, smoothstep)
 from convodrive.motion.skeleton import JOINT_INDEX, NUM_JOINTS, REST_POSITIONS
 

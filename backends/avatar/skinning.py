@@ -12,7 +12,7 @@ import math
 import numpy as np
 import scipy.sparse as sp
 
-from convodrive.backends.avatar_mesh import LID_REST_EDGES, SHAPES, Avatar, lid_positions
+from convodrive.backends.avatar.avatar_mesh import LID_REST_EDGES, SHAPES, Avatar, lid_positions
 from convodrive.motion.channels import BLENDSHAPE_INDEX
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.rotations import axis_angle_to_matrix, euler_to_matrix

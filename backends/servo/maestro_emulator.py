@@ -14,8 +14,8 @@ import threading
 import time
 from typing import Callable
 
-from convodrive.backends import maestro_protocol as mp
-from convodrive.backends.pty_server import PtyServer
+from convodrive.backends.servo import maestro_protocol as mp
+from convodrive.backends.servo.pty_server import PtyServer
 from convodrive.errors import UserError
 
 # Command byte -> number of data bytes that follow it (SET_MULTIPLE_TARGETS is variable).

@@ -1,0 +1,1 @@
+"""Servo buses, protocols, safety and emulators behind the dynamixel and maestro backends."""
