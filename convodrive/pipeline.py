@@ -142,16 +142,20 @@ def drive(
         if on_frame is not None:
             on_frame(index + 1, total)
 
-    scheduler = Scheduler(
-        generator.stream_takes(source.chunks(chunk_samples), seeds),
-        routes,
-        realtime=realtime,
-        expected_frames=session.num_frames,
-        audio_seconds=source.duration,
-        on_frame=frame_done,
-        on_start=(lambda: on_start(realtime)) if on_start is not None else None,
-    )
-    result = scheduler.run()
+    try:
+        scheduler = Scheduler(
+            generator.stream_takes(source.chunks(chunk_samples), seeds),
+            routes,
+            realtime=realtime,
+            expected_frames=session.num_frames,
+            audio_seconds=source.duration,
+            on_frame=frame_done,
+            on_start=(lambda: on_start(realtime)) if on_start is not None else None,
+        )
+    except BaseException:  # e.g. Ctrl-C before the scheduler took the backends over
+        _close_all(routes)
+        raise
+    result = scheduler.run()  # from here the scheduler closes every backend, whatever happens
     outputs = [p for r in routes for p in _safe_outputs(r.backend)]
     context = {
         "audio": {
@@ -215,13 +219,17 @@ def _open_backends(
                 retarget = retargeters[key]
             routes.append(Route(backend, retarget, key))
     except BaseException:
-        for route in routes:
-            try:
-                route.backend.close()
-            except Exception:
-                pass
+        _close_all(routes)
         raise
     return routes, failed
+
+
+def _close_all(routes: list[Route]) -> None:
+    for route in routes:
+        try:
+            route.backend.close()
+        except Exception:
+            pass
 
 
 def _profile_for(cls: type[Backend], config: RunConfig) -> Any:

@@ -170,12 +170,15 @@ class BackendWorker(threading.Thread):
                     self.stats.send_seconds.append(time.perf_counter() - start)
                 self._watch_health()
         finally:
-            try:
-                backend.close()
-            except Exception as exc:
-                self.stats.close_error = f"{exc.__class__.__name__}: {exc}"
-                self._event("close-error", self.stats.close_error)
-            self.stats.dropped += self.slot.dropped
+            self.close_backend()
+
+    def close_backend(self) -> None:
+        try:
+            self.route.backend.close()
+        except Exception as exc:
+            self.stats.close_error = f"{exc.__class__.__name__}: {exc}"
+            self._event("close-error", self.stats.close_error)
+        self.stats.dropped += self.slot.dropped
 
     def _watch_health(self) -> None:
         if self.stats.sent % 30:
@@ -316,7 +319,10 @@ class Scheduler:
             for w in workers:
                 w.slot.close()
             for w in workers:
-                w.join()
+                if w.is_alive() or w.ident is not None:
+                    w.join()
+                else:  # never started (interrupted at once): its backend still must close
+                    w.close_backend()
             self._restore_signal_handlers(previous)
         wall = time.monotonic() - wall_start
         return RunResult(

@@ -55,7 +55,8 @@ class BodySynth:
         self.backchannel = bump(0.2)
         self.drift = smoother(_DRIFT_TAU, 5)
         self.follow = smoother(0.35, 2)
-        self.arms = smoother(0.13, 2 * _P)
+        # Both arms start in the rest pose (weight 1 on library pose 0), not eased in from a T-pose.
+        self.arms = smoother(0.13, 2 * _P).settle(np.tile(np.eye(_P)[0], 2))
         self.flick = bump(0.09, 2)
         self.uniform = FrameNoise(seed, 21, dims=6)
         self.normal = FrameNoise(seed, 22, dims=5, kind="normal")

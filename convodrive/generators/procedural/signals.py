@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import lfilter
+from scipy.signal import lfilter, lfilter_zi
 
 from convodrive import FPS
 
@@ -53,6 +53,11 @@ class Filter:
     def __init__(self, b: list[float], a: list[float], dims: int = 1) -> None:
         self.b, self.a = np.asarray(b, float), np.asarray(a, float)
         self.zi = np.zeros((max(len(self.a), len(self.b)) - 1, dims))
+
+    def settle(self, value: np.ndarray) -> "Filter":
+        """Start as if ``value`` had always been the input: the output begins there, not at zero."""
+        self.zi = lfilter_zi(self.b, self.a)[:, None] * np.asarray(value, float).reshape(1, -1)
+        return self
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         x2 = x.reshape(len(x), -1).astype(np.float64)
