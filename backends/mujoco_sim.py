@@ -93,6 +93,8 @@ class MujocoBackend(Backend):
         self.frames = 0
         self.refused = 0
         self.physics_seconds = 0.0
+        self.sim_seconds = 0.0
+        self.steps_total = 0
         self.render_seconds = 0.0
         self.video_path: Path | None = None
         self.video_error: str | None = None
@@ -134,7 +136,6 @@ class MujocoBackend(Backend):
                 raise InputFileError(self.model_path, f"has no joint {name!r}, which target {spec.name!r} drives")
             self.qadr[i] = m.jnt_qposadr[jid]
             self.act[i] = self._position_actuator(jid)
-        self.steps_per_frame = max(1, round((1.0 / session.fps) / m.opt.timestep))
         self.sq_err = np.zeros(len(spec.names))
         self.max_err = np.zeros(len(spec.names))
         self.frames = 0
@@ -309,8 +310,14 @@ class MujocoBackend(Backend):
                 d.qvel[:] = 0.0
                 mujoco.mj_forward(m, d)
             d.ctrl[self.act] = values
-        for _ in range(self.steps_per_frame):
+        # Lock step with the clock: simulate up to the end of this frame's 1/30 s, so whole
+        # timesteps that do not divide 1/30 s (17 x 2 ms = 34 ms) never drift from the audio.
+        target = (frame.index + 1) / self.session.fps
+        steps = max(0, int(round((target - self.sim_seconds) / m.opt.timestep)))
+        for _ in range(steps):
             mujoco.mj_step(m, d)
+        self.steps_total += steps
+        self.sim_seconds += steps * m.opt.timestep
         self.physics_seconds += time.perf_counter() - t0
         if values is not None:
             err = d.qpos[self.qadr] - values
@@ -360,7 +367,7 @@ class MujocoBackend(Backend):
         track = self.tracking()
         neck_head = [v["rms"] for k, v in track.items() if k.startswith(NECK_HEAD)]
         worst = max(track.items(), key=lambda kv: kv[1]["rms"]) if track else (None, {"rms": 0.0})
-        sim_time = self.frames * self.steps_per_frame * (self.model.opt.timestep if self.model is not None else 0.0)
+        sim_time = self.sim_seconds
         return {
             "frames": self.frames,
             "refused_frames": self.refused,
@@ -379,7 +386,8 @@ class MujocoBackend(Backend):
         return {
             "model": str(self.model_path) if self.model_path else None,
             "timestep": float(self.model.opt.timestep) if self.model is not None else None,
-            "steps_per_frame": getattr(self, "steps_per_frame", None),
+            "physics_steps": self.steps_total,
+            "sim_seconds": round(self.sim_seconds, 4),
             "gl": self.gl,
             "video": str(self.video_path) if self.video_path else None,
             "video_error": self.video_error,

@@ -88,6 +88,8 @@ def test_humanoid_video_and_tracking(tmp_path):
     assert report["neck_head_rms_deg"] <= 2.0
     assert backend.data.qpos[backend.qadr[backend.spec.index["jaw"]]] != 0.0
     assert backend.health()["status"] == "ok"
+    # Physics in lock step with the 30 fps clock: simulated time ends within one timestep of the clip.
+    assert abs(report["sim_seconds"] - len(clip.pose) / 30.0) <= backend.model.opt.timestep
 
 
 def test_rendering_failure_degrades_to_no_video(tmp_path, monkeypatch):
