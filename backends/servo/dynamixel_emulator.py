@@ -20,7 +20,7 @@ from typing import Callable, Iterable
 
 from convodrive.backends.servo import dynamixel_packet as dp
 from convodrive.backends.servo.dynamixel_table import Model, decode, encode, model as lookup_model
-from convodrive.backends.servo.pty_server import PtyServer
+from convodrive.backends.servo.pty_server import PtyDevice, PtyServer
 from convodrive.errors import UserError
 
 Clock = Callable[[], float]
@@ -158,7 +158,7 @@ class LoggedWrite:
         return self.value
 
 
-class DynamixelEmulator:
+class DynamixelEmulator(PtyDevice):
     """Servos on one emulated bus. A context manager; ``port`` is the path to open."""
 
     def __init__(self, ids: Iterable[int] = range(1, 8), model: str = "xl330", *, baudrate: int = 1_000_000,
@@ -178,24 +178,6 @@ class DynamixelEmulator:
         self.drop_rate = 0.0
         self.corrupt_rate = 0.0
         self._server = PtyServer(self._on_bytes, link=link, name="dynamixel-emulator")
-
-    # ------------------------------------------------------------- lifecycle
-    @property
-    def port(self) -> str:
-        return self._server.port
-
-    def start(self) -> "DynamixelEmulator":
-        self._server.start()
-        return self
-
-    def stop(self) -> None:
-        self._server.stop()
-
-    def __enter__(self) -> "DynamixelEmulator":
-        return self if self._server.connected else self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     def servo(self, servo_id: int) -> EmulatedServo:
         return self.servos[servo_id]

@@ -15,7 +15,7 @@ import time
 from typing import Callable
 
 from convodrive.backends.servo import maestro_protocol as mp
-from convodrive.backends.servo.pty_server import PtyServer
+from convodrive.backends.servo.pty_server import PtyDevice, PtyServer
 from convodrive.errors import UserError
 
 # Command byte -> number of data bytes that follow it (SET_MULTIPLE_TARGETS is variable).
@@ -54,7 +54,7 @@ class TargetWrite:
     target: int
 
 
-class MaestroEmulator:
+class MaestroEmulator(PtyDevice):
     """A Mini Maestro with ``channels`` servo channels. A context manager; ``port`` is the path."""
 
     def __init__(self, channels: int = 12, *, device: int = 12, link: str | None = None,
@@ -70,23 +70,6 @@ class MaestroEmulator:
         self._drop = 0
         self._last = clock()
         self._server = PtyServer(self._on_bytes, link=link, name="maestro-emulator")
-
-    @property
-    def port(self) -> str:
-        return self._server.port
-
-    def start(self) -> "MaestroEmulator":
-        self._server.start()
-        return self
-
-    def stop(self) -> None:
-        self._server.stop()
-
-    def __enter__(self) -> "MaestroEmulator":
-        return self if self._server.connected else self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     def targets(self, channel: int) -> list[TargetWrite]:
         with self._lock:

@@ -138,3 +138,30 @@ class PtyServer:
                     data = b""
                 if data:
                     self._on_bytes(data)
+
+
+class PtyDevice:
+    """Base of the emulators: a device that answers bytes on its own ``PtyServer``.
+
+    Subclasses create ``self._server`` in their ``__init__`` with their ``_on_bytes`` handler; this
+    gives them the port path, start/stop, and use as a context manager (started if not yet).
+    """
+
+    _server: PtyServer
+
+    @property
+    def port(self) -> str:
+        return self._server.port
+
+    def start(self) -> "PtyDevice":
+        self._server.start()
+        return self
+
+    def stop(self) -> None:
+        self._server.stop()
+
+    def __enter__(self) -> "PtyDevice":
+        return self if self._server.connected else self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
