@@ -12,8 +12,9 @@ equipment: if no headless GL works, or the renderer fails mid-run, physics and t
 report carry on and the report says why there is no video.
 
 Options (``backends: {mujoco: {...}}`` in the run config):
-  model      MJCF path or a name in convodrive.sims; default: the profile's ``model``
-  profile    robot profile name or YAML path, used to find the model when ``model`` is not given
+  model      MJCF path or a name in convodrive.sims; the pipeline sets it from the profile's
+             ``model`` (default: the bundled model named like the target)
+  profile    (read by the pipeline, not here) the robot profile this backend is driven with
   video      write ``<out_dir>/mujoco.mp4`` (default true)
   width, height   video size (default 640x480); camera: a camera name, or "free" for
              one framing the model from the front (default "front", else the model's first camera)
@@ -47,32 +48,26 @@ def _one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text[:300]}"
 
 
-def _resolve_model(options: dict[str, Any], spec: TargetSpec, default_profile: str) -> Path:
+def _resolve_model(options: dict[str, Any], spec: TargetSpec) -> Path:
+    """The MJCF to load: option ``model`` (a path, or a file name in convodrive.sims), else the
+    bundled model named like the target (``servo_head`` -> sims/servo_head.xml). The pipeline sets
+    ``model`` from the robot profile, so a backend never needs to read profiles itself."""
     import importlib.resources
 
-    from convodrive.retargeting import load_profile
+    def bundled(name: str) -> Path:
+        return Path(str(importlib.resources.files("convodrive.sims").joinpath(name)))
 
     model = options.get("model")
     if model:
         path = Path(str(model)).expanduser()
         if path.is_file():
             return path
-        bundled = Path(str(importlib.resources.files("convodrive.sims").joinpath(str(model))))
-        if bundled.is_file():
-            return bundled
+        if bundled(str(model)).is_file():
+            return bundled(str(model))
         raise UserError(f"mujoco backend option model: {model!r} is neither a file nor a model in convodrive.sims")
-    for candidate in (options.get("profile"), spec.name if spec.names else None, default_profile):
-        if not candidate:
-            continue
-        try:
-            profile = load_profile(candidate)
-        except UserError:
-            if candidate == options.get("profile"):
-                raise
-            continue
-        if profile.model_path is not None and (not spec.names or set(spec.names) <= set(profile.spec.names)):
-            return profile.model_path
-    raise UserError(f"mujoco backend: no MJCF for target {spec.name!r}; give options model: or profile:")
+    if spec.name and bundled(f"{spec.name}.xml").is_file():
+        return bundled(f"{spec.name}.xml")
+    raise UserError(f"mujoco backend: no MJCF for target {spec.name!r}; give the option model: PATH")
 
 
 class MujocoBackend(Backend):
@@ -116,7 +111,7 @@ class MujocoBackend(Backend):
         import mujoco
 
         self.gl, gl_reason = select_gl()
-        self.model_path = _resolve_model(self.options, spec, self.default_profile or "")
+        self.model_path = _resolve_model(self.options, spec)
         mspec = load_spec(self.model_path)
         if self.options.get("weld_root", True):
             fix_root(mspec)

@@ -38,7 +38,7 @@ def motion(n: int, seed: int = 0) -> MotionClip:
 
 
 def run_backend(profile, clip: MotionClip, retargeter: Retargeter, out: Path, **options) -> tuple[float, MujocoBackend]:
-    backend = MujocoBackend(options)
+    backend = MujocoBackend({"model": str(profile.model_path), **options})
     backend.open(profile.spec, Session(out_dir=out, num_frames=len(clip.pose)))
     retargeter.reset()
     start = time.perf_counter()

@@ -53,7 +53,7 @@ def talking_clip(n: int) -> MotionClip:
 def drive(profile_name: str, clip: MotionClip, out_dir: Path, audio: Path | None = None, **options) -> MujocoBackend:
     profile = load_profile(profile_name)
     values = Retargeter(profile).retarget_clip(clip)
-    backend = MujocoBackend({**profile.backend_options("mujoco"), **options})
+    backend = MujocoBackend({"model": str(profile.model_path), **profile.backend_options("mujoco"), **options})
     backend.open(profile.spec, Session(out_dir=out_dir, audio_path=audio, num_frames=len(values)))
     try:
         for i, row in enumerate(values):
@@ -134,7 +134,7 @@ def test_config_only_gymnasium_humanoid_bends_its_elbows(tmp_path):
     clip.pose[:, J["left_shoulder"], 2], clip.pose[:, J["right_shoulder"], 2] = -1.1, 1.1
     clip.pose[:, J["left_elbow"], 1], clip.pose[:, J["right_elbow"], 1] = -bend, bend
     profile = load_profile("gymnasium_humanoid")
-    backend = MujocoBackend({**profile.backend_options("mujoco"), "video": False})
+    backend = MujocoBackend({"model": str(profile.model_path), **profile.backend_options("mujoco"), "video": False})
     values = Retargeter(profile).retarget_clip(clip)
     backend.open(profile.spec, Session(out_dir=tmp_path, num_frames=n))
     m, d = backend.model, backend.data
