@@ -112,8 +112,8 @@ def drive(
         raise UserError("name at least one backend with --backend")
     source = AudioSource(request.audio, request.channels)
     config = load_run_config(request.config)
-    backend_classes: dict[str, type[Backend]] = {name: load_plugin(BACKEND_GROUP, name) for name in dict.fromkeys(request.backends)}
-    realtime = request.realtime if request.realtime is not None else any(c.realtime for c in backend_classes.values())
+    planned = _make_backends(request, config)
+    realtime = request.realtime if request.realtime is not None else any(p.backend.realtime for p in planned)
     out_dir = Path(request.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     session = Session(
@@ -135,7 +135,7 @@ def drive(
     # gives the same frames (generators are chunk-invariant) with less per-chunk overhead.
     chunk_samples = CHUNK_SAMPLES if realtime else ANALYSIS_RATE
 
-    routes, failed_at_open = _open_backends(backend_classes, request, config, session)
+    routes, failed_at_open = _open_backends(planned, session)
     total = session.num_frames or 0
 
     def frame_done(index: int) -> None:
@@ -181,32 +181,51 @@ def drive(
     return DriveResult(report, report_path, summary_path, outputs)
 
 
-def _open_backends(
-    backend_classes: dict[str, type[Backend]], request: DriveRequest, config: RunConfig, session: Session
-) -> tuple[list[Route], dict[str, str]]:
-    """Instantiate and open each backend. A user mistake aborts the run (closing what opened);
-    any other fault at open fails that backend alone, and the run goes on without it."""
+@dataclasses.dataclass
+class _Planned:
+    """A backend made with its options, not yet opened, and the profile that drives it."""
+
+    name: str
+    backend: Backend
+    profile: Any  # RobotProfile or None
+
+
+def _make_backends(request: DriveRequest, config: RunConfig) -> list[_Planned]:
+    """Instantiate each named backend with its merged options (a bad name or option is a UserError).
+
+    Instances, not classes, say whether they are real-time: the renderer becomes one when its
+    live window can open."""
+    planned = []
+    for name in dict.fromkeys(request.backends):
+        cls: type[Backend] = load_plugin(BACKEND_GROUP, name)
+        profile = _profile_for(cls, config)
+        options: dict[str, Any] = {}
+        if profile is not None:
+            if profile.model_path is not None:
+                options["model"] = str(profile.model_path)  # the body a simulator loads
+            options.update(profile.backend_options(name))
+        options.update(config.backend_options(name))
+        options.update(request.backend_options.get(name, {}))
+        planned.append(_Planned(name, cls(options), profile))
+    return planned
+
+
+def _open_backends(planned: list[_Planned], session: Session) -> tuple[list[Route], dict[str, str]]:
+    """Open each backend. A user mistake aborts the run (closing what opened); any other fault at
+    open fails that backend alone, and the run goes on without it."""
     routes: list[Route] = []
     failed: dict[str, str] = {}
     retargeters: dict[str, Any] = {}
     try:
-        for name, cls in backend_classes.items():
-            profile = _profile_for(cls, config)
-            options: dict[str, Any] = {}
-            if profile is not None:
-                if profile.model_path is not None:
-                    options["model"] = str(profile.model_path)  # the body a simulator loads
-                options.update(profile.backend_options(name))
-            options.update(config.backend_options(name))
-            options.update(request.backend_options.get(name, {}))
-            backend = cls(options)
+        for item in planned:
+            profile = item.profile
             spec = profile.spec if profile is not None else TargetSpec.empty()
             try:
-                backend.open(spec, session)
+                item.backend.open(spec, session)
             except UserError:
                 raise
             except Exception as exc:  # hardware or driver fault: this backend only
-                failed[name] = f"{exc.__class__.__name__}: {exc}"
+                failed[item.name] = f"{exc.__class__.__name__}: {exc}"
                 continue
             retarget = None
             key = ""
@@ -217,7 +236,7 @@ def _open_backends(
 
                     retargeters[key] = Retargeter(profile)
                 retarget = retargeters[key]
-            routes.append(Route(backend, retarget, key))
+            routes.append(Route(item.backend, retarget, key))
     except BaseException:
         _close_all(routes)
         raise

@@ -13,6 +13,8 @@ dev=0
 # espeak-ng makes the tests' speech; ffmpeg brings ffprobe for checking videos; EGL and OSMesa are
 # the two headless GL routes for the renderer and MuJoCo.
 apt_packages=(espeak-ng ffmpeg libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6)
+# The tests also open the avatar's live window on a virtual X display.
+[ "$dev" = 1 ] && apt_packages+=(xvfb)
 missing=()
 for pkg in "${apt_packages[@]}"; do
     dpkg -s "$pkg" >/dev/null 2>&1 || missing+=("$pkg")

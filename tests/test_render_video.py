@@ -187,6 +187,47 @@ def test_window_without_display_degrades_to_file_only(tmp_path, monkeypatch):
     assert (tmp_path / "avatar.mp4").is_file()
 
 
+@pytest.fixture
+def x_display():
+    """A virtual X display (Xvfb) for the live window, as a desktop would provide."""
+    if not shutil.which("Xvfb"):
+        pytest.skip("Xvfb is not installed (scripts/setup.sh --dev installs it)")
+    import os
+    import time
+
+    number = next(n for n in range(91, 200) if not os.path.exists(f"/tmp/.X11-unix/X{n}") and not os.path.exists(f"/tmp/.X{n}-lock"))
+    proc = subprocess.Popen(["Xvfb", f":{number}", "-screen", "0", "320x240x24", "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 10
+    while not os.path.exists(f"/tmp/.X11-unix/X{number}") and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    try:
+        yield f":{number}"
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def test_live_window_shows_the_frames_on_a_display(tmp_path, monkeypatch, x_display):
+    from convodrive.backends.render import RenderBackend
+
+    monkeypatch.setenv("DISPLAY", x_display)
+    backend = RenderBackend({"window": True, "camera": "face", "resolution": "64x64"})
+    assert backend.realtime is True, "a live window is paced by the wall clock"
+    backend.open(TargetSpec.empty(), Session(out_dir=tmp_path))
+    clip = _clip(3)
+    for i in range(3):
+        backend.send(TargetFrame(index=i, time=i / 30, values=np.zeros(0), takes=(clip.frame(i),)))
+    photo = backend._window._photo
+    shown = {photo.get(x, y) for x in range(0, 64, 8) for y in range(0, 64, 8)}
+    size = (photo.width(), photo.height())
+    backend.close()
+    assert size == (64, 64)
+    assert len(shown) > 4, "the window shows the rendered avatar, not a blank image"
+    assert backend.health()["status"] == "ok" and "note" not in backend.health()
+    assert (tmp_path / "avatar.mp4").is_file(), "the video is still written beside the window"
+
+
 def test_clips_at_other_rates_are_resampled_and_held():
     from convodrive.cli.render import frame_indices
 
