@@ -43,6 +43,10 @@ class Backend(abc.ABC):
     """True for hardware and live windows: paced by the wall clock. False for files."""
     default_profile: ClassVar[str | None] = None
     """A robot profile under config/robots used when the run names none; None for canonical-only."""
+    requires: ClassVar[tuple[str, ...]] = ()
+    """Modules the backend imports only when it opens; a missing one makes the plugin unavailable."""
+    extra: ClassVar[str] = ""
+    """The pip extra of convodrive that installs ``requires``, for the error message."""
 
     def __init__(self, options: dict[str, Any] | None = None) -> None:
         self.options: dict[str, Any] = dict(options or {})

@@ -41,6 +41,8 @@ class DynamixelBackend(ServoBackend):
     description = "Dynamixel Protocol 2.0 servo head (XL330, XM430, XL-320, ...) over dynamixel-sdk"
     realtime = True
     default_profile = "servo_head"
+    requires = ("dynamixel_sdk",)
+    extra = "hardware"
 
     def __init__(self, options: dict[str, Any] | None = None) -> None:
         super().__init__(options)

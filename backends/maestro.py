@@ -41,6 +41,8 @@ class MaestroBackend(ServoBackend):
     description = "Hobby servos on a Pololu Maestro USB servo controller (compact protocol, pyserial)"
     realtime = True
     default_profile = "servo_head"
+    requires = ("serial",)
+    extra = "hardware"
 
     def __init__(self, options: dict[str, Any] | None = None) -> None:
         super().__init__(options)

@@ -75,6 +75,8 @@ class MujocoBackend(Backend):
     description = "MuJoCo physics: position-controlled humanoid or servo-head twin, offscreen mp4, tracking report"
     realtime = False
     default_profile = "convo_humanoid"
+    requires = ("mujoco",)
+    extra = "sim"
 
     def __init__(self, options: dict[str, Any] | None = None) -> None:
         super().__init__(options)

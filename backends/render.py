@@ -90,6 +90,8 @@ class RenderBackend(Backend):
     description = "Mesh avatar preview: headless pyrender (EGL/OSMesa) to mp4 with audio, K takes in a grid"
     realtime = False
     default_profile = None
+    requires = ("pyrender", "OpenGL", "trimesh")
+    extra = "render"
 
     def __init__(self, options: dict[str, Any] | None = None) -> None:
         super().__init__(options)

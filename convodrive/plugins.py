@@ -8,6 +8,7 @@ pyproject.toml, so there is one mechanism for all.
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 from importlib.metadata import EntryPoint, entry_points
 from typing import Any
 
@@ -39,9 +40,20 @@ def load_plugin(group: str, name: str) -> type:
         known = ", ".join(sorted(eps)) or "none installed"
         raise UserError(f"unknown {kind} '{name}' (available: {known})")
     try:
-        return eps[name].load()
+        cls = eps[name].load()
     except ImportError as exc:
         raise UserError(f"{kind} '{name}' cannot be loaded: {exc} (is its extra installed?)") from None
+    missing = missing_modules(cls)
+    if missing:
+        extra = getattr(cls, "extra", "")
+        hint = f"pip install 'convodrive[{extra}]'" if extra else "install its dependencies"
+        raise UserError(f"{kind} '{name}' needs {', '.join(missing)}, which is not installed ({hint})")
+    return cls
+
+
+def missing_modules(cls: type) -> list[str]:
+    """The modules a plugin declares in ``requires`` that this Python cannot import."""
+    return [m for m in getattr(cls, "requires", ()) if importlib.util.find_spec(m) is None]
 
 
 def list_plugins(group: str) -> list[PluginInfo]:
@@ -49,7 +61,9 @@ def list_plugins(group: str) -> list[PluginInfo]:
     for name, ep in sorted(_entry_points(group).items()):
         try:
             cls: Any = ep.load()
-            infos.append(PluginInfo(name, group, ep.value, getattr(cls, "description", "") or "", True))
+            missing = missing_modules(cls)
+            problem = f"needs {', '.join(missing)} (extra '{getattr(cls, 'extra', '')}')" if missing else ""
+            infos.append(PluginInfo(name, group, ep.value, getattr(cls, "description", "") or "", not missing, problem))
         except Exception as exc:  # a broken third-party plugin must not break the listing
             infos.append(PluginInfo(name, group, ep.value, "", False, f"{exc.__class__.__name__}: {exc}"))
     return infos

@@ -47,3 +47,13 @@ def test_installed_plugins_drive_a_run(plugin_site: Path, tone_dialogue: Path, t
     report = json.loads((tmp_path / "run" / "run_report.json").read_text())
     assert report["generator"]["name"] == "tiny_nod"
     assert report["backends"]["tiny_log"]["frames_sent"] == 90
+
+
+def test_plugin_with_a_missing_dependency_is_named_not_crashed(plugin_site: Path, tone_dialogue: Path, tmp_path: Path) -> None:
+    listing = run_cli("plugins", env={"PYTHONPATH": str(plugin_site)})
+    line = next(ln for ln in listing.stdout.splitlines() if "tiny_missing" in ln)
+    assert "unavailable" in line and "convodrive_no_such_module" in line
+    out = run_cli("drive", str(tone_dialogue), "--backend", "tiny_missing", "--out", str(tmp_path / "run"),
+                  env={"PYTHONPATH": str(plugin_site)})
+    assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1
+    assert "convodrive_no_such_module" in out.stderr and "convodrive[imaginary]" in out.stderr

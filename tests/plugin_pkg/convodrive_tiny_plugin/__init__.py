@@ -48,3 +48,10 @@ class FrameLogBackend(Backend):
 
     def outputs(self):
         return [self.session.out_dir / "tiny_log.json"]
+
+
+class NeedsMissingModule(FrameLogBackend):
+    name = "tiny_missing"
+    description = "a backend whose dependency is not installed (plugin test)"
+    requires = ("convodrive_no_such_module",)
+    extra = "imaginary"
