@@ -7,13 +7,14 @@ vertex, and a sparse vertex-face sum gives smooth normals. No Python loop over v
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import scipy.sparse as sp
 
 from convodrive.backends.avatar.avatar_mesh import LID_REST_EDGES, SHAPES, Avatar, lid_positions
 from convodrive.motion.channels import BLENDSHAPE_INDEX
+from convodrive.motion.channels import EYE_LOOK_PITCH_RAD as GAZE_PITCH  # the joint-channel tie
+from convodrive.motion.channels import EYE_LOOK_YAW_RAD as GAZE_YAW
+from convodrive.motion.channels import JAW_OPEN_RAD as JAW_RAD_AT_FULL_OPEN
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.rotations import axis_angle_to_matrix, euler_to_matrix
 from convodrive.motion.skeleton import JOINT_INDEX, REST_POSITIONS, forward_kinematics
@@ -21,12 +22,6 @@ from convodrive.motion.skeleton import JOINT_INDEX, REST_POSITIONS, forward_kine
 _SHAPE_COLUMNS = np.array([BLENDSHAPE_INDEX[name] for name in SHAPES])
 _JAW = JOINT_INDEX["jaw"]
 _EYES = (JOINT_INDEX["left_eye_smplhf"], JOINT_INDEX["right_eye_smplhf"])
-# How the canonical motion ties joints to channels (the procedural generator writes the same):
-# the jaw joint turns 28 degrees about +X (chin down) at jawOpen = 1, and an eye turns 30 degrees
-# of yaw or 25 of pitch when an eyeLook* channel reaches 1.
-JAW_RAD_AT_FULL_OPEN = math.radians(28.0)
-GAZE_YAW = math.radians(30.0)
-GAZE_PITCH = math.radians(25.0)
 
 
 def skinning_matrices(rotations: np.ndarray, positions: np.ndarray) -> np.ndarray:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import enum
+import math
 
 ARKIT_NAMES: tuple[str, ...] = (
     "eyeBlinkLeft", "eyeLookDownLeft", "eyeLookInLeft", "eyeLookOutLeft", "eyeLookUpLeft",
@@ -21,6 +22,14 @@ ARKIT_NAMES: tuple[str, ...] = (
 )
 NUM_BLENDSHAPES = len(ARKIT_NAMES)
 BLENDSHAPE_INDEX: dict[str, int] = {name: i for i, name in enumerate(ARKIT_NAMES)}
+
+# How the skeleton's jaw and eye joints tie to the face channels (DESIGN: "kept consistent"):
+# generators write both, and renderers or retargeters may read either.
+JAW_OPEN_RAD = math.radians(28.0)
+"""Jaw joint rotation about +X (chin down) at ``jawOpen`` = 1."""
+EYE_LOOK_YAW_RAD = math.radians(30.0)
+EYE_LOOK_PITCH_RAD = math.radians(25.0)
+"""Eye joint yaw / pitch at which an ``eyeLook*`` channel reaches 1."""
 
 VAD_NAMES: tuple[str, str] = ("self", "other")
 """Columns of a clip's voice-activity array: self (channel 0) and the partner (channel 1)."""

@@ -18,12 +18,9 @@ from convodrive.generators.procedural.options import ProceduralOptions
 from convodrive.generators.procedural.signals import FrameNoise, Filter, bump, one_pole, smoother
 from convodrive.motion.channels import BLENDSHAPE_INDEX as B
 from convodrive.motion.channels import NUM_BLENDSHAPES
-
-JAW_MAX_RAD = math.radians(28.0)
-"""Jaw joint rotation (about +X, chin down) at ``jawOpen`` = 1."""
-EYE_YAW_MAX = math.radians(30.0)
-EYE_PITCH_MAX = math.radians(25.0)
-"""Eye rotation at which an ``eyeLook*`` channel reaches 1."""
+from convodrive.motion.channels import EYE_LOOK_PITCH_RAD as EYE_PITCH_MAX
+from convodrive.motion.channels import EYE_LOOK_YAW_RAD as EYE_YAW_MAX
+from convodrive.motion.channels import JAW_OPEN_RAD as JAW_MAX_RAD
 
 # Viseme -> (jaw factor, {ARKit channel: weight}); L/R pairs are written once without the side.
 _VISEME_SHAPES: dict[str, tuple[float, dict[str, float]]] = {
