@@ -23,7 +23,7 @@ from convodrive.motion.channels import BLENDSHAPE_INDEX as B
 from convodrive.motion.clip import MotionClip
 from convodrive.motion.rotations import axis_angle_to_matrix
 from convodrive.motion.skeleton import JOINT_INDEX as J
-from convodrive.motion.skeleton import PARENTS
+from convodrive.motion.skeleton import global_rotation
 
 JAW_CLOSED = 0.05
 _BRIDGE_FRAMES = 4
@@ -61,15 +61,7 @@ def envelope(rms: np.ndarray) -> np.ndarray:
 
 def head_angular_speed(clip: MotionClip) -> np.ndarray:
     """(T,) angular speed of the head's global orientation, degrees per second (0 for frame 0)."""
-    chain = []
-    j = J["head"]
-    while j >= 0:
-        chain.append(j)
-        j = PARENTS[j]
-    mats = axis_angle_to_matrix(clip.pose[:, chain[::-1]])
-    glob = mats[:, 0]
-    for i in range(1, mats.shape[1]):
-        glob = glob @ mats[:, i]
+    glob = global_rotation(axis_angle_to_matrix(clip.pose), J["head"])
     rel = np.einsum("tji,tjk->tik", glob[:-1], glob[1:])
     cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
     return np.degrees(np.concatenate([[0.0], np.arccos(cos)])) * clip.fps

@@ -213,3 +213,14 @@ def test_npz_not_a_zip_or_pickled(tmp_path: Path) -> None:
         load_clip(pickled)
     with pytest.raises(InputFileError, match="no such file"):
         load_clip(tmp_path / "absent.npz")
+
+
+def test_global_rotation_of_one_joint_equals_full_forward_kinematics() -> None:
+    from convodrive.motion.rotations import axis_angle_to_matrix
+    from convodrive.motion.skeleton import JOINT_INDEX, forward_kinematics, global_rotation
+
+    rng = np.random.default_rng(3)
+    local = axis_angle_to_matrix(rng.normal(scale=0.4, size=(7, 55, 3)))
+    glob, _ = forward_kinematics(local)
+    for name in ("head", "left_wrist", "right_thumb3", "pelvis"):
+        np.testing.assert_allclose(global_rotation(local, JOINT_INDEX[name]), glob[:, JOINT_INDEX[name]], atol=1e-12)

@@ -23,7 +23,7 @@ from convodrive.atomic import atomic_path
 from convodrive.motion import rotations
 from convodrive.motion.channels import ARKIT_NAMES, BLENDSHAPE_INDEX
 from convodrive.motion.clip import MotionClip
-from convodrive.motion.skeleton import JOINT_INDEX, forward_kinematics
+from convodrive.motion.skeleton import JOINT_INDEX, global_rotation
 
 BLENDSHAPE_COUNT = 61
 _SWAPS = {"jawLeft": "jawRight", "jawRight": "jawLeft", "mouthLeft": "mouthRight", "mouthRight": "mouthLeft"}
@@ -54,9 +54,8 @@ def head_eye_rotations(pose: np.ndarray) -> np.ndarray:
     """(T, 9) yaw, pitch, roll of the head (global) and of the left and right eyes (in the head),
     from local axis-angle poses (T, 55, 3)."""
     local = rotations.axis_angle_to_matrix(pose)
-    glob, _ = forward_kinematics(local)
     mats = np.stack(
-        [glob[:, JOINT_INDEX["head"]], local[:, JOINT_INDEX["left_eye_smplhf"]], local[:, JOINT_INDEX["right_eye_smplhf"]]],
+        [global_rotation(local, JOINT_INDEX["head"]), local[:, JOINT_INDEX["left_eye_smplhf"]], local[:, JOINT_INDEX["right_eye_smplhf"]]],
         axis=1,
     )
     return rotations.matrix_to_euler(mats, _YAW_PITCH_ROLL).reshape(len(pose), 9)

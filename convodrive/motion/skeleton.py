@@ -100,6 +100,27 @@ def children(joint: int) -> list[int]:
     return [i for i, p in enumerate(PARENTS) if p == joint]
 
 
+def chain_to_root(joint: int) -> list[int]:
+    """The joints from the root down to ``joint``, inclusive."""
+    chain = []
+    while joint >= 0:
+        chain.append(joint)
+        joint = PARENTS[joint]
+    return chain[::-1]
+
+
+def global_rotation(rotmats: np.ndarray, joint: int) -> np.ndarray:
+    """(..., 3, 3) world orientation of one joint from local rotations (..., 55, 3, 3).
+
+    Walks only the joint's chain to the root, so a head or wrist costs a few matmuls, not 55.
+    """
+    chain = chain_to_root(joint)
+    glob = rotmats[..., chain[0], :, :]
+    for j in chain[1:]:
+        glob = glob @ rotmats[..., j, :, :]
+    return glob
+
+
 def forward_kinematics(
     rotmats: np.ndarray, root_translation: np.ndarray | None = None, offsets: np.ndarray = REST_OFFSETS
 ) -> tuple[np.ndarray, np.ndarray]:
