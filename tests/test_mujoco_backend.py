@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 from pathlib import Path
 
 import numpy as np
 import soundfile as sf
 
+from convodrive.audio.synth import speak
 from convodrive.backends.base import Session
 from convodrive.backends.mujoco_sim import MujocoBackend
 from convodrive.motion.channels import BLENDSHAPE_INDEX as B
@@ -20,13 +20,10 @@ from convodrive.targets import TargetFrame
 
 
 def speech(path: Path) -> float:
-    """A spoken sentence from espeak-ng (a tone if it is missing); returns its duration."""
-    if shutil.which("espeak-ng"):
-        subprocess.run(["espeak-ng", "-w", str(path), "Hello there, how are you today?"], check=True, capture_output=True)
-    else:
-        sf.write(path, 0.1 * np.sin(2 * np.pi * 220 * np.arange(32000) / 16000), 16000)
-    info = sf.info(path)
-    return info.frames / info.samplerate
+    """A spoken sentence from espeak-ng; returns its duration."""
+    voice = speak("Hello there, how are you today?")
+    sf.write(path, voice, 16000)
+    return len(voice) / 16000
 
 
 def talking_clip(n: int) -> MotionClip:
