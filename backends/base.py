@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from convodrive import FPS
-from convodrive.targets import TargetFrame, TargetSpec
+from convodrive.motion.targets import TargetFrame, TargetSpec
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,7 +62,7 @@ class Backend(abc.ABC):
     def send(self, frame: TargetFrame) -> None:
         """Apply one frame. Must not block for long in real time; raise on a fault."""
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 (optional hook; most backends have nothing to finish)
         """Finish every output. Called once, even after errors."""
 
     def health(self) -> dict[str, Any]:

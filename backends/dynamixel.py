@@ -30,8 +30,8 @@ from convodrive.backends.servo import dynamixel_table as dt
 from convodrive.backends.servo.dynamixel_bus import DynamixelBus, Motor
 from convodrive.backends.servo.safety import RawMap
 from convodrive.backends.servo.servo_base import PortLost, ServoBackend
-from convodrive.errors import UserError
-from convodrive.targets import TargetSpec
+from convodrive.motion.targets import TargetSpec
+from convodrive.plumbing.errors import UserError
 
 HEALTH_REGISTERS = ["Present_Position", "Present_Input_Voltage", "Present_Temperature"]
 
@@ -66,8 +66,10 @@ class DynamixelBackend(ServoBackend):
             raise UserError("backends.dynamixel.joints: expected a mapping of joint name to servo settings")
         unknown = sorted(set(joints) - set(spec.names))
         if unknown:
-            raise UserError(f"backends.dynamixel.joints: {', '.join(unknown)} not in profile {spec.name} "
-                            f"(joints: {', '.join(spec.names)})")
+            raise UserError(
+                f"backends.dynamixel.joints: {', '.join(unknown)} not in profile {spec.name} "
+                f"(joints: {', '.join(spec.names)})"
+            )
         zero, scale, low, high = [], [], [], []
         for name in (n for n in spec.names if n in joints):
             motor, z, s, lo, hi = self._joint(spec, name, joints[name] or {}, default_model)
@@ -80,7 +82,9 @@ class DynamixelBackend(ServoBackend):
         self.names = [m.name for m in self._motors]
         return RawMap(np.array(zero), np.array(scale), np.array(low, float), np.array(high, float))
 
-    def _joint(self, spec: TargetSpec, name: str, j: dict[str, Any], default: dt.Model) -> tuple[Motor, float, float, int, int]:
+    def _joint(
+        self, spec: TargetSpec, name: str, j: dict[str, Any], default: dt.Model
+    ) -> tuple[Motor, float, float, int, int]:
         key = f"backends.dynamixel.joints.{name}"
         i = spec.index[name]
         try:
@@ -96,8 +100,10 @@ class DynamixelBackend(ServoBackend):
             ends = sorted((z + s * spec.lower[i], z + s * spec.upper[i]))
             lo = int(j.get("min_tick", max(0, math.floor(ends[0]))))
             hi = int(j.get("max_tick", min(table.max_tick, math.ceil(ends[1]))))
-            self._profile[name] = (int(j.get("profile_velocity", self.options.get("profile_velocity", 0))),
-                                   int(j.get("profile_acceleration", self.options.get("profile_acceleration", 0))))
+            self._profile[name] = (
+                int(j.get("profile_velocity", self.options.get("profile_velocity", 0))),
+                int(j.get("profile_acceleration", self.options.get("profile_acceleration", 0))),
+            )
         except (KeyError, TypeError, ValueError) as exc:
             raise UserError(f"{key}: bad servo settings ({type(exc).__name__}: {exc})") from None
         if not 0 <= servo_id <= 252:
@@ -110,8 +116,13 @@ class DynamixelBackend(ServoBackend):
     # ---------------------------------------------------------------- bus
     def _hw_open(self) -> None:
         opts = self.options
-        self.bus = DynamixelBus(str(opts["port"]), self._motors, baudrate=int(opts.get("baudrate", 1_000_000)),
-                                retries=int(opts.get("retries", 2)), latency_ms=float(opts.get("latency_ms", 16.0)))
+        self.bus = DynamixelBus(
+            str(opts["port"]),
+            self._motors,
+            baudrate=int(opts.get("baudrate", 1_000_000)),
+            retries=int(opts.get("retries", 2)),
+            latency_ms=float(opts.get("latency_ms", 16.0)),
+        )
         self.bus.connect()
         answering = [m.name for m in self._motors if self._check_model(m)]
         if not answering:
@@ -130,8 +141,10 @@ class DynamixelBackend(ServoBackend):
             return False
         if found[0] != motor.model.number:
             self.bus.disconnect()
-            raise UserError(f"backends.dynamixel.joints.{motor.name}: servo {motor.id} is "
-                            f"{dt.model_name(found[0])}, the profile says {motor.model.name}")
+            raise UserError(
+                f"backends.dynamixel.joints.{motor.name}: servo {motor.id} is "
+                f"{dt.model_name(found[0])}, the profile says {motor.model.name}"
+            )
         return True
 
     def _setup(self, names: list[str]) -> None:
@@ -140,8 +153,11 @@ class DynamixelBackend(ServoBackend):
         assert bus is not None
         for name in names:
             table = bus.motors[name].table
-            lo_reg, hi_reg = (("Min_Position_Limit", "Max_Position_Limit") if table.has("Min_Position_Limit")
-                              else ("CW_Angle_Limit", "CCW_Angle_Limit"))
+            lo_reg, hi_reg = (
+                ("Min_Position_Limit", "Max_Position_Limit")
+                if table.has("Min_Position_Limit")
+                else ("CW_Angle_Limit", "CCW_Angle_Limit")
+            )
             lo, hi = self._limits[name]
             eeprom = {lo_reg: lo, hi_reg: hi, "Return_Delay_Time": self._return_delay}
             if any(bus.read(reg, name) != value for reg, value in eeprom.items()):

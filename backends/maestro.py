@@ -29,8 +29,8 @@ import serial
 from convodrive.backends.servo import maestro_protocol as mp
 from convodrive.backends.servo.safety import RawMap
 from convodrive.backends.servo.servo_base import PortLost, ServoBackend, open_error
-from convodrive.errors import UserError
-from convodrive.targets import TargetSpec
+from convodrive.motion.targets import TargetSpec
+from convodrive.plumbing.errors import UserError
 
 SERIAL_ERRORS = (serial.SerialException, OSError, termios.error, TypeError)
 MIN_US, MAX_US = 64.0, 4000.0
@@ -119,15 +119,21 @@ class MaestroBackend(ServoBackend):
         """Open the port and check the controller answers; False if it does not."""
         port = str(self.options["port"])
         try:
-            self.serial = serial.Serial(port, int(self.options.get("baudrate", 115200)),
-                                        timeout=float(self.options.get("timeout_s", 0.05)), write_timeout=0.5)
+            self.serial = serial.Serial(
+                port,
+                int(self.options.get("baudrate", 115200)),
+                timeout=float(self.options.get("timeout_s", 0.05)),
+                write_timeout=0.5,
+            )
         except (serial.SerialException, OSError, ValueError) as exc:
             raise open_error(port, exc) from None
         if len(self._io(self._cmd(mp.get_errors()), 2)) != 2:
             self._drop_port()
             return False
-        setup = b"".join(self._cmd(mp.set_speed(c, self._limits[n][0])) + self._cmd(mp.set_acceleration(c, self._limits[n][1]))
-                         for n, c in zip(self.names, self.channels))
+        setup = b"".join(
+            self._cmd(mp.set_speed(c, self._limits[n][0])) + self._cmd(mp.set_acceleration(c, self._limits[n][1]))
+            for n, c in zip(self.names, self.channels)
+        )
         self._io(setup)
         return True
 
@@ -182,13 +188,21 @@ class MaestroBackend(ServoBackend):
         self._io(b"".join(self._cmd(mp.set_target(c, 0)) for c in self.channels))
         request = b"".join(self._cmd(mp.get_position(c)) for c in self.channels)
         reply = self._io(request, 2 * len(self.channels))  # an off channel reads 0
-        return {n: reply[2 * i: 2 * i + 2] == b"\x00\x00" for i, n in enumerate(self.names)}
+        return {n: reply[2 * i : 2 * i + 2] == b"\x00\x00" for i, n in enumerate(self.names)}
 
     def _hw_close(self) -> None:
         self._drop_port()
 
     def _hw_health(self) -> dict[str, dict[str, Any]]:
         seen = None if self._last_seen is None else round(time.monotonic() - self._last_seen, 3)
-        return {n: {"channel": c, "status": "ok", "last_seen_s": seen, "timeouts": self._timeouts,
-                    "faults": list(self._controller_errors), **self._status.get(n, {})}
-                for n, c in zip(self.names, self.channels)}
+        return {
+            n: {
+                "channel": c,
+                "status": "ok",
+                "last_seen_s": seen,
+                "timeouts": self._timeouts,
+                "faults": list(self._controller_errors),
+                **self._status.get(n, {}),
+            }
+            for n, c in zip(self.names, self.channels)
+        }

@@ -37,8 +37,8 @@ from typing import Any
 import numpy as np
 
 from convodrive.backends.base import Backend, Session
-from convodrive.errors import InputFileError, UserError
-from convodrive.targets import TargetFrame, TargetSpec
+from convodrive.motion.targets import TargetFrame, TargetSpec
+from convodrive.plumbing.errors import InputFileError, UserError
 
 NECK_HEAD = ("neck", "head")
 
@@ -83,7 +83,9 @@ class MujocoBackend(Backend):
         self.width = int(self.options.get("width", 640))
         self.height = int(self.options.get("height", 480))
         if self.width <= 0 or self.height <= 0 or self.width % 2 or self.height % 2:
-            raise UserError(f"mujoco backend: width and height must be positive even numbers, got {self.width}x{self.height}")
+            raise UserError(
+                f"mujoco backend: width and height must be positive even numbers, got {self.width}x{self.height}"
+            )
         self.model: Any = None
         self.data: Any = None
         self.model_path: Path | None = None
@@ -107,10 +109,10 @@ class MujocoBackend(Backend):
     # -- setup -----------------------------------------------------------------------------
     def open(self, spec: TargetSpec, session: Session) -> None:
         super().open(spec, session)
-        from convodrive.mjcf import compile_spec, fix_root, load_spec
-        from convodrive.mujoco_gl import select_gl
-
         import mujoco
+
+        from convodrive.plumbing.mjcf import compile_spec, fix_root, load_spec
+        from convodrive.plumbing.mujoco_gl import select_gl
 
         self.gl, gl_reason = select_gl()
         self.model_path = _resolve_model(self.options, spec)
@@ -158,8 +160,12 @@ class MujocoBackend(Backend):
 
         m = self.model
         for a in range(m.nu):
-            if (int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT) and m.actuator_trnid[a, 0] == jid
-                    and int(m.actuator_biastype[a]) == int(mujoco.mjtBias.mjBIAS_AFFINE) and m.actuator_biasprm[a, 1] < 0):
+            if (
+                int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT)
+                and m.actuator_trnid[a, 0] == jid
+                and int(m.actuator_biastype[a]) == int(mujoco.mjtBias.mjBIAS_AFFINE)
+                and m.actuator_biasprm[a, 1] < 0
+            ):
                 return a
         raise InputFileError(self.model_path, f"joint {m.joint(jid).name!r} has no position actuator")
 
@@ -174,11 +180,16 @@ class MujocoBackend(Backend):
         if self.options.get("hold_unmapped", True):
             # Joints coupled by an equality constraint (a mirrored eye) follow it, not a servo.
             coupled = {n for e in mspec.equalities if e.type == mujoco.mjtEq.mjEQ_JOINT for n in (e.name1, e.name2)}
-            targets |= {model.joint(j).name for j in range(model.njnt)
-                        if int(model.jnt_type[j]) in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
-                        and model.joint(j).name not in coupled}
+            targets |= {
+                model.joint(j).name
+                for j in range(model.njnt)
+                if int(model.jnt_type[j]) in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+                and model.joint(j).name not in coupled
+            }
         has_position = {a.target for a in mspec.actuators if a.trntype == mujoco.mjtTrn.mjTRN_JOINT and is_position(a)}
-        needed = [n for n in targets if n not in has_position and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) >= 0]
+        needed = [
+            n for n in targets if n not in has_position and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) >= 0
+        ]
         if not needed:
             return
         for act in list(mspec.actuators):
@@ -232,7 +243,7 @@ class MujocoBackend(Backend):
     def _open_video(self, session: Session) -> None:
         import mujoco
 
-        from convodrive.video import VideoWriter
+        from convodrive.plumbing.video import VideoWriter
 
         try:
             m = self.model
@@ -252,7 +263,9 @@ class MujocoBackend(Backend):
             else:
                 self._camera = self._free_camera()
             self.video_path = Path(session.out_dir) / "mujoco.mp4"
-            self._writer = VideoWriter(self.video_path, self.width, self.height, fps=session.fps, audio_path=session.audio_path)
+            self._writer = VideoWriter(
+                self.video_path, self.width, self.height, fps=session.fps, audio_path=session.audio_path
+            )
         except UserError:
             raise
         except Exception as exc:
@@ -296,7 +309,11 @@ class MujocoBackend(Backend):
         import mujoco
 
         values = np.asarray(frame.values, np.float64)
-        if values.shape != (len(self.spec.names),) or not np.all(np.isfinite(values)) or not self.spec.within_limits(values, 1e-6):
+        if (
+            values.shape != (len(self.spec.names),)
+            or not np.all(np.isfinite(values))
+            or not self.spec.within_limits(values, 1e-6)
+        ):
             self.refused += 1  # second guard: the retargeter enforces limits, a bad frame is not applied
             values = None
         m, d = self.model, self.data

@@ -16,16 +16,16 @@ from typing import Any
 
 import numpy as np
 
-from convodrive.atomic import atomic_path
 from convodrive.backends.base import Backend, Session
-from convodrive.errors import UserError
 from convodrive.motion.bvh import write_bvh
 from convodrive.motion.channels import NUM_BLENDSHAPES
 from convodrive.motion.clip import MotionClip
 from convodrive.motion.livelink import write_livelink_csv
 from convodrive.motion.npz import save_clip
 from convodrive.motion.skeleton import NUM_JOINTS
-from convodrive.targets import TargetFrame, TargetSpec
+from convodrive.motion.targets import TargetFrame, TargetSpec
+from convodrive.plumbing.atomic import atomic_path
+from convodrive.plumbing.errors import UserError
 
 log = logging.getLogger(__name__)
 
@@ -122,7 +122,9 @@ class RecordBackend(Backend):
         self._num_frames, self._filled = total, int(total - received.sum())
         fps = self.session.fps
         clips = [
-            MotionClip(**{k: a[source] for k, a in take.items()}, fps=fps, metadata={"take": k, "seed": self.session.seed})
+            MotionClip(
+                **{k: a[source] for k, a in take.items()}, fps=fps, metadata={"take": k, "seed": self.session.seed}
+            )
             for k, take in enumerate(self._takes)
         ]
         return clips, self._values[source], np.arange(total) / fps
@@ -153,7 +155,6 @@ class RecordBackend(Backend):
 
     def outputs(self) -> list[Path]:
         return list(self._written)
-
 
 
 def _empty_take(capacity: int) -> dict[str, np.ndarray]:

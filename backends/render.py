@@ -20,11 +20,11 @@ from typing import Any
 
 import numpy as np
 
-from convodrive.atomic import atomic_path
-from convodrive.backends.base import Backend, Session
 from convodrive.backends.avatar.render_scene import CAMERAS, AvatarRenderer, grid_shape, parse_resolution
-from convodrive.errors import UserError
-from convodrive.targets import TargetFrame, TargetSpec
+from convodrive.backends.base import Backend, Session
+from convodrive.motion.targets import TargetFrame, TargetSpec
+from convodrive.plumbing.atomic import atomic_path
+from convodrive.plumbing.errors import UserError
 
 _OPTIONS = {"camera", "resolution", "filename", "contact_sheet", "antialias", "window"}
 CONTACT_CELLS = 12
@@ -97,7 +97,9 @@ class RenderBackend(Backend):
         super().__init__(options)
         unknown = set(self.options) - _OPTIONS
         if unknown:
-            raise UserError(f"render: unknown option(s) {', '.join(sorted(unknown))} (known: {', '.join(sorted(_OPTIONS))})")
+            raise UserError(
+                f"render: unknown option(s) {', '.join(sorted(unknown))} (known: {', '.join(sorted(_OPTIONS))})"
+            )
         self.camera = str(self.options.get("camera", "upper"))
         if self.camera not in CAMERAS:
             raise UserError(f"render: camera {self.camera!r} is not one of {', '.join(CAMERAS)}")
@@ -149,12 +151,17 @@ class RenderBackend(Backend):
                 self.window_note = f"live window unavailable ({exc}); rendering to file only"
 
     def _open_writer(self, takes: int) -> None:
-        from convodrive.video import VideoWriter
+        from convodrive.plumbing.video import VideoWriter
 
         rows, cols = grid_shape(takes)
         audio = self.session.audio_path if self.session else None
-        self._writer = VideoWriter(self.video_path, cols * self.width, rows * self.height,
-                                   fps=self.session.fps if self.session else 30, audio_path=audio)
+        self._writer = VideoWriter(
+            self.video_path,
+            cols * self.width,
+            rows * self.height,
+            fps=self.session.fps if self.session else 30,
+            audio_path=audio,
+        )
         self._takes = takes
 
     def send(self, frame: TargetFrame) -> None:

@@ -38,12 +38,15 @@ def bundled_or_synthesised() -> Path:
     from convodrive.audio.synth import PARTNER, SELF, Turn, synthesize_dialogue
 
     out = Path(tempfile.mkdtemp()) / "dialogue.wav"
-    synthesize_dialogue([
-        Turn(SELF, "Hi there. Did you get a chance to look at the robot head yesterday?"),
-        Turn(PARTNER, "I did. It was moving its eyes really smoothly.", "en-us+f3", 175),
-        Turn(SELF, "Great. The jaw follows the voice now, but the lips are still a bit stiff."),
-        Turn(PARTNER, "Maybe we can use the visemes from the speech recogniser.", "en-us+f3", 175),
-    ], out)
+    synthesize_dialogue(
+        [
+            Turn(SELF, "Hi there. Did you get a chance to look at the robot head yesterday?"),
+            Turn(PARTNER, "I did. It was moving its eyes really smoothly.", "en-us+f3", 175),
+            Turn(SELF, "Great. The jaw follows the voice now, but the lips are still a bit stiff."),
+            Turn(PARTNER, "Maybe we can use the visemes from the speech recogniser.", "en-us+f3", 175),
+        ],
+        out,
+    )
     return out
 
 
@@ -94,14 +97,16 @@ def aligned_speech() -> list:
     from convodrive.audio.synth import speak
     from convodrive.audio.visemes import phone_viseme
 
-    aligner = Decoder(hmm=get_model_path("en-us/en-us"), dict=get_model_path("en-us/cmudict-en-us.dict"),
-                      loglevel="FATAL")
+    aligner = Decoder(
+        hmm=get_model_path("en-us/en-us"), dict=get_model_path("en-us/cmudict-en-us.dict"), loglevel="FATAL"
+    )
     data = []
     for i, text in enumerate(SENTENCES):
         for voice in (VOICES[i % 5], VOICES[(i + 2) % 5]):
             x = speak(text, *voice)
-            x = np.concatenate([np.zeros(3200, np.float32), 0.6 * x / max(float(np.abs(x).max()), 1e-9),
-                                np.zeros(3200, np.float32)])
+            x = np.concatenate(
+                [np.zeros(3200, np.float32), 0.6 * x / max(float(np.abs(x).max()), 1e-9), np.zeros(3200, np.float32)]
+            )
             x += np.random.default_rng(i).normal(0, 1e-3, len(x)).astype(np.float32)
             pcm = (np.clip(x, -1, 1) * 32767).astype(np.int16).tobytes()
             try:
@@ -135,8 +140,17 @@ def phone_accuracy() -> dict:
     data = aligned_speech()
     result: dict = {"utterances": len(data), "seconds": round(sum(len(r) for _, r in data) / 100, 1)}
 
-    old = Decoder(hmm=get_model_path("en-us/en-us"), allphone=get_model_path("en-us/en-us-phone.lm.bin"),
-                  loglevel="FATAL", lw=2.0, pip=0.3, beam=1e-10, pbeam=1e-10, ds=2, topn=2)
+    old = Decoder(
+        hmm=get_model_path("en-us/en-us"),
+        allphone=get_model_path("en-us/en-us-phone.lm.bin"),
+        loglevel="FATAL",
+        lw=2.0,
+        pip=0.3,
+        beam=1e-10,
+        pbeam=1e-10,
+        ds=2,
+        topn=2,
+    )
 
     def former():
         phones._POOL.clear()  # the tracker hands its decoder back to the pool; reuse this one
@@ -163,14 +177,17 @@ def phone_accuracy() -> dict:
             pp_found += int(((said == pp) & (truth == pp)).sum())
             pp_true += int((truth == pp).sum())
             pp_said += int((said == pp).sum())
-        result[label] = {"viseme_frames_right": round(right / frames, 3),
-                         "PP_recall": round(pp_found / max(pp_true, 1), 3),
-                         "PP_precision": round(pp_found / max(pp_said, 1), 3),
-                         "analysis_realtime_factor_cpu": round(result["seconds"] / cpu, 1)}
+        result[label] = {
+            "viseme_frames_right": round(right / frames, 3),
+            "PP_recall": round(pp_found / max(pp_true, 1), 3),
+            "PP_precision": round(pp_found / max(pp_said, 1), 3),
+            "analysis_realtime_factor_cpu": round(result["seconds"] / cpu, 1),
+        }
     phones._acquire_decoder = current
     phones._POOL.clear()
-    result["current"]["settings"] = dict(phones.DECODER_SETTINGS, densities=phones.DENSITIES,
-                                         phones=" ".join(phones.VISEME_PHONES))
+    result["current"]["settings"] = dict(
+        phones.DECODER_SETTINGS, densities=phones.DENSITIES, phones=" ".join(phones.VISEME_PHONES)
+    )
     return result
 
 
@@ -229,9 +246,9 @@ def main() -> int:
     for label, options in configs.items():
         gen = ProceduralGenerator(options)
         gen.generate(audio, seed=0)  # warm up: loads the phone model once per process
-        offline = run_times(lambda: gen.generate(audio, seed=0), args.repeats)
-        streamed = run_times(lambda: sum(1 for _ in gen.stream(audio.chunks(), seed=0)), args.repeats)
-        takes = run_times(lambda: gen.generate(audio, seed=0, num_samples=4), max(1, args.repeats // 2))
+        offline = run_times(lambda g=gen: g.generate(audio, seed=0), args.repeats)
+        streamed = run_times(lambda g=gen: sum(1 for _ in g.stream(audio.chunks(), seed=0)), args.repeats)
+        takes = run_times(lambda g=gen: g.generate(audio, seed=0, num_samples=4), max(1, args.repeats // 2))
         result[label] = {
             "options": options,
             "lookahead_frames": gen.lookahead_frames,

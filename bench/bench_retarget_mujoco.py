@@ -20,8 +20,8 @@ import numpy as np
 from convodrive.backends.base import Session
 from convodrive.backends.mujoco_sim import MujocoBackend
 from convodrive.motion.clip import MotionClip
+from convodrive.motion.targets import TargetFrame
 from convodrive.retargeting import Retargeter, load_profile
-from convodrive.targets import TargetFrame
 
 
 def motion(n: int, seed: int = 0) -> MotionClip:

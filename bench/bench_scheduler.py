@@ -15,56 +15,12 @@ import os
 import tempfile
 import time
 from pathlib import Path
-from typing import Any, Iterator
-
-import numpy as np
+from typing import Any
 
 from convodrive import FPS
-from convodrive.backends.base import Backend, Session
-from convodrive.motion.clip import MotionFrame
-from convodrive.report import build_report
-from convodrive.scheduler import Route, Scheduler
-from convodrive.targets import TargetFrame
-
-
-class CountingBackend(Backend):
-    """A fast backend that records which frame indices reached it, and when."""
-
-    name = "fast"
-    realtime = True
-
-    def __init__(self, options: dict[str, Any] | None = None) -> None:
-        super().__init__(options)
-        self.name = str(self.options.get("name", "fast"))
-        self.indices: list[int] = []
-        self.closed = False
-
-    def send(self, frame: TargetFrame) -> None:
-        self.indices.append(frame.index)
-
-    def close(self) -> None:
-        self.closed = True
-
-
-class SlowBackend(CountingBackend):
-    """Takes ``delay`` seconds per frame, like a congested serial bus."""
-
-    def send(self, frame: TargetFrame) -> None:
-        time.sleep(float(self.options.get("delay", 0.2)))
-        super().send(frame)
-
-
-class FailingBackend(CountingBackend):
-    """Raises on every frame, like a servo head whose port vanished."""
-
-    def send(self, frame: TargetFrame) -> None:
-        raise OSError("port vanished")
-
-
-def neutral_frames(count: int) -> Iterator[tuple[MotionFrame, ...]]:
-    frame = MotionFrame.neutral()
-    for i in range(count):
-        yield (MotionFrame(i / FPS, frame.pose, frame.translation, frame.face, frame.vad),)
+from convodrive.backends.base import Session
+from convodrive.scheduler import MonotonicClock, Route, Scheduler, build_report
+from tests.doubles import CountingBackend, SlowBackend, neutral_frames
 
 
 def _burn(stop_at: float) -> None:
@@ -76,17 +32,25 @@ def _burn(stop_at: float) -> None:
 def run_bench(seconds: float, load: bool = True) -> dict[str, Any]:
     frames = int(round(seconds * FPS))
     load_before = os.getloadavg()
-    backends = [CountingBackend({"name": "fast_a"}), CountingBackend({"name": "fast_b"}), SlowBackend({"name": "slow", "delay": 0.2})]
+    backends = [
+        CountingBackend({"name": "fast_a"}),
+        CountingBackend({"name": "fast_b"}),
+        SlowBackend({"name": "slow", "delay": 0.2}),
+    ]
     with tempfile.TemporaryDirectory() as tmp:
         session = Session(out_dir=Path(tmp), offline=False, num_frames=frames)
         for b in backends:
             b.open(b.spec, session)
         loader = None
         if load:
-            loader = multiprocessing.get_context("spawn").Process(target=_burn, args=(time.time() + seconds + 5,), daemon=True)
+            loader = multiprocessing.get_context("spawn").Process(
+                target=_burn, args=(time.time() + seconds + 5,), daemon=True
+            )
             loader.start()
         try:
-            scheduler = Scheduler(neutral_frames(frames), [Route(b) for b in backends], realtime=True, expected_frames=frames)
+            scheduler = Scheduler(
+                neutral_frames(frames), [Route(b) for b in backends], clock=MonotonicClock(), expected_frames=frames
+            )
             result = scheduler.run()
         finally:
             if loader is not None:
@@ -109,8 +73,10 @@ def run_bench(seconds: float, load: bool = True) -> dict[str, Any]:
         "effective_fps": report["effective_fps"],
         "targets": {"jitter_p99_ms": 2.0, "drift_frames": 0, "fast_backends_lost": 0},
         "targets_met": bool(
-            report["jitter_ms"]["p99"] <= 2.0 and abs(report["drift_frames"]) < 0.5
-            and lost["fast_a"] == 0 and lost["fast_b"] == 0
+            report["jitter_ms"]["p99"] <= 2.0
+            and abs(report["drift_frames"]) < 0.5
+            and lost["fast_a"] == 0
+            and lost["fast_b"] == 0
         ),
     }
 

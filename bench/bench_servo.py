@@ -24,13 +24,13 @@ import numpy as np
 
 from convodrive.backends.base import Session
 from convodrive.backends.dynamixel import HEALTH_REGISTERS, DynamixelBackend
+from convodrive.backends.maestro import MaestroBackend
 from convodrive.backends.servo.dynamixel_bus import DynamixelBus, Motor
 from convodrive.backends.servo.dynamixel_emulator import start_emulated_head
 from convodrive.backends.servo.dynamixel_table import model
-from convodrive.backends.maestro import MaestroBackend
 from convodrive.backends.servo.maestro_emulator import start_emulated_maestro
+from convodrive.motion.targets import TargetFrame
 from convodrive.retargeting import load_profile
-from convodrive.targets import TargetFrame
 
 BAUD = 1_000_000
 N_SERVOS = 7
@@ -38,8 +38,12 @@ N_SERVOS = 7
 
 def stats(values: list[float]) -> dict[str, float]:
     arr = np.asarray(values)
-    return {"p50": round(float(np.percentile(arr, 50)), 3), "p99": round(float(np.percentile(arr, 99)), 3),
-            "mean": round(float(arr.mean()), 3), "n": int(arr.size)}
+    return {
+        "p50": round(float(np.percentile(arr, 50)), 3),
+        "p99": round(float(np.percentile(arr, 99)), 3),
+        "mean": round(float(arr.mean()), 3),
+        "n": int(arr.size),
+    }
 
 
 def bus_time(frames: int, return_delay_us: int) -> dict[str, object]:
@@ -66,10 +70,18 @@ def bus_time(frames: int, return_delay_us: int) -> dict[str, object]:
     write_bytes = 14 + N_SERVOS * (1 + 4)
     read_bytes = 14 + N_SERVOS + N_SERVOS * (11 + span)
     wire_ms = (write_bytes + read_bytes) * 10 / BAUD * 1e3 + N_SERVOS * return_delay_us / 1e3
-    return {"servos": N_SERVOS, "baudrate": BAUD, "return_delay_us": return_delay_us, "sync_write_ms": stats(write_ms), "sync_read_ms": stats(read_ms),
-            "total_ms": stats(total_ms), "wire_bytes_per_frame": write_bytes + read_bytes,
-            "wire_only_ms": round(wire_ms, 3), "comm_failures": failures,
-            "budget_share_at_30fps": round(float(np.percentile(total_ms, 99)) / (1000 / 30), 3)}
+    return {
+        "servos": N_SERVOS,
+        "baudrate": BAUD,
+        "return_delay_us": return_delay_us,
+        "sync_write_ms": stats(write_ms),
+        "sync_read_ms": stats(read_ms),
+        "total_ms": stats(total_ms),
+        "wire_bytes_per_frame": write_bytes + read_bytes,
+        "wire_only_ms": round(wire_ms, 3),
+        "comm_failures": failures,
+        "budget_share_at_30fps": round(float(np.percentile(total_ms, 99)) / (1000 / 30), 3),
+    }
 
 
 def frame_to_wire(backend_cls, emulator, profile, frames: int, log) -> dict[str, float]:  # type: ignore[no-untyped-def]
@@ -82,8 +94,11 @@ def frame_to_wire(backend_cls, emulator, profile, frames: int, log) -> dict[str,
     start = time.monotonic()
     for i in range(frames):
         t = i / 30
-        values = np.clip(spec.neutral + 0.2 * np.sin(2 * np.pi * 0.5 * t + np.arange(len(spec.names))) * min(1.0, t),
-                         spec.lower, spec.upper)
+        values = np.clip(
+            spec.neutral + 0.2 * np.sin(2 * np.pi * 0.5 * t + np.arange(len(spec.names))) * min(1.0, t),
+            spec.lower,
+            spec.upper,
+        )
         before = len(log())
         sent.append((time.monotonic(), before))
         backend.send(TargetFrame(i, t, values, ()))
@@ -99,16 +114,22 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=300)
     args = parser.parse_args()
     profile = load_profile("servo_head")
-    result: dict[str, object] = {"bench": "servo", "dynamixel_sdk": importlib.metadata.version("dynamixel-sdk"),
-                                 "python": platform.python_version(), "frames": args.frames}
+    result: dict[str, object] = {
+        "bench": "servo",
+        "dynamixel_sdk": importlib.metadata.version("dynamixel-sdk"),
+        "python": platform.python_version(),
+        "frames": args.frames,
+    }
     result["dynamixel_bus_per_frame"] = bus_time(args.frames, 0)  # what the backend configures
     result["dynamixel_bus_per_frame_factory_delay"] = bus_time(args.frames, 500)
     with start_emulated_head() as emu:
-        result["dynamixel_frame_to_wire_ms"] = frame_to_wire(DynamixelBackend, emu, profile, args.frames,
-                                                             lambda: emu.goal_log)
+        result["dynamixel_frame_to_wire_ms"] = frame_to_wire(
+            DynamixelBackend, emu, profile, args.frames, lambda: emu.goal_log
+        )
     with start_emulated_maestro(12) as mae:
-        result["maestro_frame_to_wire_ms"] = frame_to_wire(MaestroBackend, mae, profile, args.frames,
-                                                           lambda: mae.target_log)
+        result["maestro_frame_to_wire_ms"] = frame_to_wire(
+            MaestroBackend, mae, profile, args.frames, lambda: mae.target_log
+        )
     print(json.dumps(result, indent=2))
 
 

@@ -20,7 +20,9 @@ class OneEuroFilter:
     at ``d_cutoff``), and the smoothing factor for cutoff f is f / (f + 1 / (2 pi dt)).
     """
 
-    def __init__(self, min_cutoff: np.ndarray | float, beta: np.ndarray | float, d_cutoff: np.ndarray | float = 1.0) -> None:
+    def __init__(
+        self, min_cutoff: np.ndarray | float, beta: np.ndarray | float, d_cutoff: np.ndarray | float = 1.0
+    ) -> None:
         self.min_cutoff = np.asarray(min_cutoff, np.float64)
         self.beta = np.asarray(beta, np.float64)
         self.d_cutoff = np.asarray(d_cutoff, np.float64)
@@ -76,8 +78,11 @@ class Smoother:
         kinds = np.array([s.filter for s in settings])
         self.euro = np.flatnonzero(kinds == "one_euro")
         self.crit = np.flatnonzero(kinds == "critical")
-        self.one_euro = OneEuroFilter([settings[i].min_cutoff for i in self.euro], [settings[i].beta for i in self.euro],
-                                      [settings[i].d_cutoff for i in self.euro])
+        self.one_euro = OneEuroFilter(
+            [settings[i].min_cutoff for i in self.euro],
+            [settings[i].beta for i in self.euro],
+            [settings[i].d_cutoff for i in self.euro],
+        )
         self.critical = CriticallyDampedFilter([settings[i].time_constant for i in self.crit])
 
     def reset(self) -> None:
@@ -129,7 +134,9 @@ def critically_damped_batch(x: np.ndarray, time_constant: np.ndarray, dt: float)
     return out
 
 
-def one_euro_batch(x: np.ndarray, min_cutoff: np.ndarray, beta: np.ndarray, d_cutoff: np.ndarray, dt: float) -> np.ndarray:
+def one_euro_batch(
+    x: np.ndarray, min_cutoff: np.ndarray, beta: np.ndarray, d_cutoff: np.ndarray, dt: float
+) -> np.ndarray:
     """:class:`OneEuroFilter` over a whole (T, J) sequence: the speed estimate is a linear filter
     (vectorised); only the final, speed-dependent smoothing is a loop over time."""
     from scipy.signal import lfilter

@@ -10,17 +10,16 @@ as the posture the solution leans toward, so IK only fills in what the maps cann
 
 from __future__ import annotations
 
+import mink  # noqa: E402  (after the loader, which picks the GL platform before mujoco loads)
+import mujoco  # noqa: E402
 import numpy as np
 
 from convodrive import FPS
-from convodrive.errors import InputFileError
 from convodrive.motion.rotations import axis_angle_to_matrix
 from convodrive.motion.skeleton import JOINT_INDEX, forward_kinematics
+from convodrive.plumbing.errors import InputFileError
+from convodrive.plumbing.mjcf import hinge_qpos_addresses, load_model
 from convodrive.retargeting.profile import IKConfig, RobotProfile
-from convodrive.mjcf import hinge_qpos_addresses, load_model
-
-import mink  # noqa: E402  (after the loader, which picks the GL platform before mujoco loads)
-import mujoco  # noqa: E402
 
 
 class IKSolver:
@@ -37,7 +36,9 @@ class IKSolver:
         self.seed_adr = np.array(hinge_qpos_addresses(model, present, source), dtype=int)
         self.ik_cols = np.array([profile.spec.index[n] for n in self.cfg.joints], dtype=int)
         self.ik_adr = np.array(hinge_qpos_addresses(model, self.cfg.joints, source), dtype=int)
-        ik_dofs = {int(model.jnt_dofadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n)]) for n in self.cfg.joints}
+        ik_dofs = {
+            int(model.jnt_dofadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n)]) for n in self.cfg.joints
+        }
         frozen = [d for d in range(model.nv) if d not in ik_dofs]
 
         kinds = {"body": mujoco.mjtObj.mjOBJ_BODY, "site": mujoco.mjtObj.mjOBJ_SITE, "geom": mujoco.mjtObj.mjOBJ_GEOM}
@@ -55,13 +56,22 @@ class IKSolver:
         # it); otherwise the range limits of frozen joints make the QP infeasible.
         q_base = model.qpos0.copy()
         for j in range(model.njnt):
-            if model.jnt_limited[j] and int(model.jnt_type[j]) in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+            if model.jnt_limited[j] and int(model.jnt_type[j]) in (
+                int(mujoco.mjtJoint.mjJNT_HINGE),
+                int(mujoco.mjtJoint.mjJNT_SLIDE),
+            ):
                 adr = model.jnt_qposadr[j]
                 q_base[adr] = np.clip(q_base[adr], *model.jnt_range[j])
         self.q_base = q_base
         self.configuration = mink.Configuration(model, q_base)
         self.frame_tasks = [
-            mink.FrameTask(t.frame, t.frame_type, position_cost=t.position_cost, orientation_cost=t.orientation_cost, lm_damping=1.0)
+            mink.FrameTask(
+                t.frame,
+                t.frame_type,
+                position_cost=t.position_cost,
+                orientation_cost=t.orientation_cost,
+                lm_damping=1.0,
+            )
             for t in self.cfg.tasks
         ]
         self.posture = mink.PostureTask(model, cost=self.cfg.posture_cost)
@@ -72,8 +82,10 @@ class IKSolver:
         data = self.configuration.data
         mujoco.mj_forward(model, data)
         root_rot0 = data.xmat[self.root_body].reshape(3, 3)
-        self.rest_offset = [root_rot0.T @ self.configuration.get_transform_frame_to_world(t.frame, t.frame_type).rotation().as_matrix()
-                            for t in self.cfg.tasks]
+        self.rest_offset = [
+            root_rot0.T @ self.configuration.get_transform_frame_to_world(t.frame, t.frame_type).rotation().as_matrix()
+            for t in self.cfg.tasks
+        ]
         self.root_idx = JOINT_INDEX[self.cfg.root_canonical]
         self.q_prev: np.ndarray | None = None
         self.last_errors = np.zeros(len(self.cfg.tasks))
@@ -115,14 +127,25 @@ class IKSolver:
         dt = 1.0 / FPS
         for _ in range(self.cfg.iterations * (4 if first else 1)):  # a cold start needs more steps
             try:
-                vel = mink.solve_ik(self.configuration, tasks, dt, self.cfg.solver, damping=self.cfg.damping,
-                                    limits=self.limits, constraints=self.constraints)
+                vel = mink.solve_ik(
+                    self.configuration,
+                    tasks,
+                    dt,
+                    self.cfg.solver,
+                    damping=self.cfg.damping,
+                    limits=self.limits,
+                    constraints=self.constraints,
+                )
             except (mink.NoSolutionFound, TypeError, ValueError):
                 break  # keep the last feasible configuration rather than fail the frame
             self.configuration.integrate_inplace(vel, dt)
-        self.last_errors = np.array([
-            np.linalg.norm(self.configuration.get_transform_frame_to_world(t.frame, t.frame_type).translation() - pos)
-            for t, (pos, _) in zip(self.cfg.tasks, goals)
-        ])
+        self.last_errors = np.array(
+            [
+                np.linalg.norm(
+                    self.configuration.get_transform_frame_to_world(t.frame, t.frame_type).translation() - pos
+                )
+                for t, (pos, _) in zip(self.cfg.tasks, goals)
+            ]
+        )
         self.q_prev = self.configuration.q[self.ik_adr].copy()
         return self.q_prev.copy()

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from convodrive.targets import TargetSpec
+from convodrive.motion.targets import TargetSpec
 
 
 class MotionLimiter:

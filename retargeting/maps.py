@@ -44,7 +44,8 @@ class ChannelMaps:
         identity = len(self.rotation_joints)
         depth = max((len(chain) for chain, _ in groups), default=0)
         self.chain_slots = np.array(
-            [[slot[JOINT_INDEX[n]] for n in chain] + [identity] * (depth - len(chain)) for chain, _ in groups], dtype=int
+            [[slot[JOINT_INDEX[n]] for n in chain] + [identity] * (depth - len(chain)) for chain, _ in groups],
+            dtype=int,
         ).reshape(len(groups), depth)
         order_idx = np.array([[AXIS[c] for c in order] for _, order in groups], dtype=int).reshape(len(groups), 3)
         self.ax_a, self.ax_b, self.ax_c = order_idx.T if len(groups) else (np.zeros(0, int),) * 3
@@ -58,7 +59,9 @@ class ChannelMaps:
         self.blend_idx = np.array([BLENDSHAPE_INDEX[t.channel] for t in terms if t.kind == "blendshape"], dtype=int)
         self.trans_cols = np.array([k for k, t in enumerate(terms) if t.kind == "translation"], dtype=int)
         self.trans_idx = np.array([t.axis for t in terms if t.kind == "translation"], dtype=int)
-        self.mapped = [(k, np.asarray(t.map_x), np.asarray(t.map_y)) for k, t in enumerate(terms) if t.map_x is not None]
+        self.mapped = [
+            (k, np.asarray(t.map_x), np.asarray(t.map_y)) for k, t in enumerate(terms) if t.map_x is not None
+        ]
         self.num_terms = len(terms)
 
     def raw_terms(self, pose: np.ndarray, translation: np.ndarray, face: np.ndarray) -> np.ndarray:

@@ -38,18 +38,29 @@ from typing import Any
 import numpy as np
 import yaml
 
-from convodrive.errors import InputFileError, UserError
 from convodrive.motion.channels import BLENDSHAPE_INDEX
 from convodrive.motion.skeleton import JOINT_INDEX
-from convodrive.targets import TargetSpec
+from convodrive.motion.targets import TargetSpec
+from convodrive.plumbing.errors import InputFileError, UserError
 
 AXES = "XYZ"
 UNITS = ("rad", "norm", "m")
 FILTERS = ("one_euro", "critical", "none")
 OPAQUE_KEYS = ("backends", "generator")
 TOP_KEYS = ("name", "description", "model", "defaults", "joints", "ik", *OPAQUE_KEYS)
-JOINT_KEYS = ("source", "sum", "gain", "offset", "direction", "limits", "max_velocity",
-              "max_acceleration", "neutral", "units", "smoothing")
+JOINT_KEYS = (
+    "source",
+    "sum",
+    "gain",
+    "offset",
+    "direction",
+    "limits",
+    "max_velocity",
+    "max_acceleration",
+    "neutral",
+    "units",
+    "smoothing",
+)
 TERM_KEYS = ("rotation", "blendshape", "translation", "euler", "axis", "weight", "map")
 SMOOTHING_DEFAULT: dict[str, Any] = {"filter": "one_euro", "min_cutoff": 1.5, "beta": 0.3, "d_cutoff": 1.0}
 
@@ -211,8 +222,15 @@ def _parse_term(ck: _Checker, value: Any, key: str) -> Term:
         order = order.upper()
         if "axis" not in term:
             ck.fail(f"{key}.axis", "is required with rotation (which Euler angle drives the joint)")
-        return Term("rotation", chain=chain, euler=order, axis=ck.axis(term["axis"], f"{key}.axis", order),
-                    weight=weight, map_x=map_x, map_y=map_y)
+        return Term(
+            "rotation",
+            chain=chain,
+            euler=order,
+            axis=ck.axis(term["axis"], f"{key}.axis", order),
+            weight=weight,
+            map_x=map_x,
+            map_y=map_y,
+        )
     for extra in ("euler", "axis"):
         if extra in term and kind == "blendshape":
             ck.fail(f"{key}.{extra}", "only applies to a rotation term")
@@ -221,8 +239,9 @@ def _parse_term(ck: _Checker, value: Any, key: str) -> Term:
         if channel not in BLENDSHAPE_INDEX:
             ck.fail(f"{key}.blendshape", f"unknown channel {channel!r} (expected an ARKit blendshape name)")
         return Term("blendshape", channel=channel, weight=weight, map_x=map_x, map_y=map_y)
-    return Term("translation", axis=ck.axis(term["translation"], f"{key}.translation"), weight=weight,
-                map_x=map_x, map_y=map_y)
+    return Term(
+        "translation", axis=ck.axis(term["translation"], f"{key}.translation"), weight=weight, map_x=map_x, map_y=map_y
+    )
 
 
 def _parse_smoothing(ck: _Checker, value: Any, key: str, base: Smoothing) -> Smoothing:
@@ -278,14 +297,20 @@ def _parse_joint(ck: _Checker, name: str, value: Any, smoothing: Smoothing, by_i
         ck.fail(f"{key}.units", f"must be one of {', '.join(UNITS)}, got {units!r}")
     neutral = ck.number(spec.get("neutral", 0.0), f"{key}.neutral")
     return JointMap(
-        name=name, terms=terms,
+        name=name,
+        terms=terms,
         gain=ck.number(spec.get("gain", 1.0), f"{key}.gain"),
         offset=ck.number(spec.get("offset", 0.0), f"{key}.offset"),
-        direction=direction, lower=lower, upper=upper,
+        direction=direction,
+        lower=lower,
+        upper=upper,
         max_velocity=ck.number(spec.get("max_velocity", math.inf), f"{key}.max_velocity", positive=True),
         max_acceleration=ck.number(spec.get("max_acceleration", math.inf), f"{key}.max_acceleration", positive=True),
-        neutral=min(max(neutral, lower), upper), units=units,
-        smoothing=_parse_smoothing(ck, spec["smoothing"], f"{key}.smoothing", smoothing) if "smoothing" in spec else smoothing,
+        neutral=min(max(neutral, lower), upper),
+        units=units,
+        smoothing=_parse_smoothing(ck, spec["smoothing"], f"{key}.smoothing", smoothing)
+        if "smoothing" in spec
+        else smoothing,
     )
 
 
@@ -332,19 +357,25 @@ def _parse_ik(ck: _Checker, value: Any, joints: dict[str, JointMap]) -> IKConfig
             ck.fail(f"{key}.type", f"must be body, site or geom, got {frame_type!r}")
         anchor = ck.mapping(t.get("anchor", {"canonical": root_canonical, "body": root_body}), f"{key}.anchor")
         ck.keys(anchor, ("canonical", "body"), f"{key}.anchor")
-        tasks.append(IKTask(
-            frame=ck.string(t.get("frame"), f"{key}.frame"), frame_type=frame_type,
-            canonical=ck.canonical_joint(t.get("canonical"), f"{key}.canonical"),
-            anchor_canonical=ck.canonical_joint(anchor.get("canonical"), f"{key}.anchor.canonical"),
-            anchor_body=ck.string(anchor.get("body"), f"{key}.anchor.body"),
-            position_cost=ck.number(t.get("position_cost", 1.0), f"{key}.position_cost"),
-            orientation_cost=ck.number(t.get("orientation_cost", 0.0), f"{key}.orientation_cost"),
-        ))
+        tasks.append(
+            IKTask(
+                frame=ck.string(t.get("frame"), f"{key}.frame"),
+                frame_type=frame_type,
+                canonical=ck.canonical_joint(t.get("canonical"), f"{key}.canonical"),
+                anchor_canonical=ck.canonical_joint(anchor.get("canonical"), f"{key}.anchor.canonical"),
+                anchor_body=ck.string(anchor.get("body"), f"{key}.anchor.body"),
+                position_cost=ck.number(t.get("position_cost", 1.0), f"{key}.position_cost"),
+                orientation_cost=ck.number(t.get("orientation_cost", 0.0), f"{key}.orientation_cost"),
+            )
+        )
     iterations = ik.get("iterations", 3)
     if not isinstance(iterations, int) or isinstance(iterations, bool) or iterations < 1:
         ck.fail("ik.iterations", f"must be a positive integer, got {iterations!r}")
     return IKConfig(
-        joints=tuple(names), root_canonical=root_canonical, root_body=root_body, tasks=tuple(tasks),
+        joints=tuple(names),
+        root_canonical=root_canonical,
+        root_body=root_body,
+        tasks=tuple(tasks),
         axes=_parse_axes(ck, ik.get("axes", ["z", "x", "y"]), "ik.axes"),
         scale=ck.number(ik.get("scale", 1.0), "ik.scale", positive=True),
         posture_cost=ck.number(ik.get("posture_cost", 1e-3), "ik.posture_cost"),
@@ -385,8 +416,16 @@ def _resolve_model(ck: _Checker, value: Any, base: Path | None) -> Path | None:
 class RobotProfile:
     """A validated robot profile. ``spec`` is what backends are opened with."""
 
-    def __init__(self, name: str, joints: tuple[JointMap, ...], model_path: Path | None, ik: IKConfig | None,
-                 path: Path | None, extras: dict[str, Any], description: str = "") -> None:
+    def __init__(
+        self,
+        name: str,
+        joints: tuple[JointMap, ...],
+        model_path: Path | None,
+        ik: IKConfig | None,
+        path: Path | None,
+        extras: dict[str, Any],
+        description: str = "",
+    ) -> None:
         self.name = name
         self.description = description
         self.joints = joints
@@ -426,11 +465,15 @@ class RobotProfile:
         return self._section("generator", name)
 
     @classmethod
-    def from_dict(cls, data: Any, source: str | Path = "<profile>") -> "RobotProfile":
+    def from_dict(cls, data: Any, source: str | Path = "<profile>") -> RobotProfile:
         ck = _Checker(str(source))
         data = ck.mapping(data, "")
         ck.keys(data, TOP_KEYS, "")
-        path = Path(source) if isinstance(source, Path) or (isinstance(source, str) and source.endswith((".yaml", ".yml"))) else None
+        path = (
+            Path(source)
+            if isinstance(source, Path) or (isinstance(source, str) and source.endswith((".yaml", ".yml")))
+            else None
+        )
         name = ck.string(data.get("name", path.stem if path else None), "name")
         defaults = ck.mapping(data.get("defaults", {}), "defaults")
         ck.keys(defaults, ("smoothing",), "defaults")
@@ -441,7 +484,11 @@ class RobotProfile:
         if not raw_joints:
             ck.fail("joints", "names no joint")
         ik_raw = data.get("ik")
-        ik_names = set(ik_raw.get("joints") or []) if isinstance(ik_raw, dict) and isinstance(ik_raw.get("joints"), list) else set()
+        ik_names = (
+            set(ik_raw.get("joints") or [])
+            if isinstance(ik_raw, dict) and isinstance(ik_raw.get("joints"), list)
+            else set()
+        )
         joints = {str(n): _parse_joint(ck, str(n), v, smoothing, str(n) in ik_names) for n, v in raw_joints.items()}
         ik = _parse_ik(ck, data["ik"], joints) if data.get("ik") is not None else None
         model_path = _resolve_model(ck, data.get("model"), path.parent if path else None)

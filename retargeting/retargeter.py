@@ -12,11 +12,11 @@ import numpy as np
 
 from convodrive import FPS
 from convodrive.motion.clip import MotionClip, MotionFrame
+from convodrive.motion.targets import TargetSpec
 from convodrive.retargeting.filters import Smoother
 from convodrive.retargeting.limits import MotionLimiter
 from convodrive.retargeting.maps import ChannelMaps
 from convodrive.retargeting.profile import RobotProfile
-from convodrive.targets import TargetSpec
 
 
 class Retargeter:

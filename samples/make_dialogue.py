@@ -10,11 +10,11 @@ the partner backchannels once while self is talking. Run from anywhere:
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
-from convodrive.atomic import write_text_atomic
 from convodrive.audio.synth import PARTNER, SELF, DialogueInfo, Turn, synthesize_dialogue
+from convodrive.plumbing.atomic import write_text_atomic
 
 HERE = Path(__file__).resolve().parent
 SELF_VOICE = {"voice": "en-us", "pitch": 35, "rate": 160}

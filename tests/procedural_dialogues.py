@@ -16,13 +16,23 @@ DIALOGUES: dict[str, list[Turn]] = {
         Turn(PARTNER, "Good idea. I will try that tomorrow.", "en-gb+f3", 175, gap=0.4),
     ],
     "self_monologue": [
-        Turn(SELF, "Let me explain how the pipeline works. First the audio is analysed, then the "
-                   "generator picks a gesture for every stressed syllable, and finally the robot moves.",
-             "en-gb", 190, pitch=40),
+        Turn(
+            SELF,
+            "Let me explain how the pipeline works. First the audio is analysed, then the "
+            "generator picks a gesture for every stressed syllable, and finally the robot moves.",
+            "en-gb",
+            190,
+            pitch=40,
+        ),
     ],
     "partner_monologue": [
-        Turn(PARTNER, "I have been thinking about the schedule for next week, and honestly I believe "
-                      "we can finish the tests on Tuesday if nothing else breaks.", "en-us+f2", 150),
+        Turn(
+            PARTNER,
+            "I have been thinking about the schedule for next week, and honestly I believe "
+            "we can finish the tests on Tuesday if nothing else breaks.",
+            "en-us+f2",
+            150,
+        ),
     ],
     "overlap": [
         Turn(SELF, "So the first thing I wanted to show you is the new head design.", "en-us+m3", 170),

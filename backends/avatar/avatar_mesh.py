@@ -15,29 +15,74 @@ import functools
 import numpy as np
 import scipy.sparse as sp
 
-from convodrive.backends.avatar.mesh_build import (chain_weights, ellipsoid, grid_faces, loft, normalize,
-                                            orient_outward, rigid_weights, smoothstep)
+from convodrive.backends.avatar.mesh_build import (
+    chain_weights,
+    ellipsoid,
+    grid_faces,
+    loft,
+    normalize,
+    orient_outward,
+    rigid_weights,
+    smoothstep,
+)
 from convodrive.motion.skeleton import JOINT_INDEX, NUM_JOINTS, REST_POSITIONS
 
 J = JOINT_INDEX
 MAX_INFLUENCES = 4
 
 # Materials: roughness of each; colours live in the vertices, so one material serves many parts.
-MATERIALS: dict[str, float] = {"skin": 0.55, "lips": 0.38, "cloth": 0.85, "eyes": 0.12, "hair": 0.9,
-                               "teeth": 0.3, "mouth": 1.0}
+MATERIALS: dict[str, float] = {
+    "skin": 0.55,
+    "lips": 0.38,
+    "cloth": 0.85,
+    "eyes": 0.12,
+    "hair": 0.9,
+    "teeth": 0.3,
+    "mouth": 1.0,
+}
 COLORS: dict[str, tuple[float, float, float]] = {
-    "skin": (0.86, 0.64, 0.52), "lips": (0.70, 0.36, 0.35), "shirt": (0.20, 0.38, 0.52),
-    "trousers": (0.17, 0.17, 0.21), "shoes": (0.11, 0.09, 0.08), "hair": (0.17, 0.11, 0.08),
-    "sclera": (0.95, 0.94, 0.92), "iris": (0.24, 0.43, 0.52), "pupil": (0.02, 0.02, 0.02),
-    "teeth": (0.94, 0.92, 0.86), "mouth": (0.30, 0.07, 0.08), "lash": (0.10, 0.07, 0.06),
+    "skin": (0.86, 0.64, 0.52),
+    "lips": (0.70, 0.36, 0.35),
+    "shirt": (0.20, 0.38, 0.52),
+    "trousers": (0.17, 0.17, 0.21),
+    "shoes": (0.11, 0.09, 0.08),
+    "hair": (0.17, 0.11, 0.08),
+    "sclera": (0.95, 0.94, 0.92),
+    "iris": (0.24, 0.43, 0.52),
+    "pupil": (0.02, 0.02, 0.02),
+    "teeth": (0.94, 0.92, 0.86),
+    "mouth": (0.30, 0.07, 0.08),
+    "lash": (0.10, 0.07, 0.06),
 }
 
 SHAPES: tuple[str, ...] = (
-    "jawOpen", "jawForward", "jawLeft", "jawRight", "mouthClose", "mouthFunnel", "mouthPucker",
-    "mouthLeft", "mouthRight", "mouthSmileLeft", "mouthSmileRight", "mouthFrownLeft", "mouthFrownRight",
-    "mouthStretchLeft", "mouthStretchRight", "mouthLowerDownLeft", "mouthLowerDownRight",
-    "mouthUpperUpLeft", "mouthUpperUpRight", "browDownLeft", "browDownRight", "browInnerUp",
-    "browOuterUpLeft", "browOuterUpRight", "cheekPuff", "noseSneerLeft", "noseSneerRight",
+    "jawOpen",
+    "jawForward",
+    "jawLeft",
+    "jawRight",
+    "mouthClose",
+    "mouthFunnel",
+    "mouthPucker",
+    "mouthLeft",
+    "mouthRight",
+    "mouthSmileLeft",
+    "mouthSmileRight",
+    "mouthFrownLeft",
+    "mouthFrownRight",
+    "mouthStretchLeft",
+    "mouthStretchRight",
+    "mouthLowerDownLeft",
+    "mouthLowerDownRight",
+    "mouthUpperUpLeft",
+    "mouthUpperUpRight",
+    "browDownLeft",
+    "browDownRight",
+    "browInnerUp",
+    "browOuterUpLeft",
+    "browOuterUpRight",
+    "cheekPuff",
+    "noseSneerLeft",
+    "noseSneerRight",
 )
 """Face channels with vertex blendshapes; blinks, squints and gaze move the lids and eyes instead."""
 
@@ -137,6 +182,7 @@ def _part(material: str, verts: np.ndarray, faces: np.ndarray, weights: np.ndarr
 
 # ---------------------------------------------------------------------------------------- body
 
+
 def _torso() -> list[_Part]:
     ref = np.array([0.0, 0.0, 1.0])
     sp3, s1, s2, pel = J["spine3"], J["spine1"], J["spine2"], J["pelvis"]
@@ -160,7 +206,9 @@ def _torso() -> list[_Part]:
         w[:, collar] += c
     parts.append(_part("cloth", v, f, w, "shirt"))
     neck = np.array([[0, 1.40, -0.02], [0, 1.48, -0.015], [0, 1.56, 0.0], [0, 1.60, 0.0]])
-    v, f, rho = loft(neck, [0.05, 0.047, 0.046, 0.046], [0.05, 0.047, 0.046, 0.046], ref, 16, sub=3, caps=(False, False))
+    v, f, rho = loft(
+        neck, [0.05, 0.047, 0.046, 0.046], [0.05, 0.047, 0.046, 0.046], ref, 16, sub=3, caps=(False, False)
+    )
     parts.append(_part("skin", v, f, chain_weights(rho, [sp3, J["neck"], J["head"]], NUM_JOINTS), "skin"))
     return parts
 
@@ -190,7 +238,9 @@ def _hand(side: str) -> list[_Part]:
     ref = np.array([0.0, 1.0, 0.0])
     wrist, elbow = J[f"{side}_wrist"], J[f"{side}_elbow"]
     w0 = P[wrist]
-    palm = np.array([w0 + [-0.012 * sgn, 0, -0.012], w0 + [0.03 * sgn, -0.002, -0.024], w0 + [0.083 * sgn, -0.002, -0.026]])
+    palm = np.array(
+        [w0 + [-0.012 * sgn, 0, -0.012], w0 + [0.03 * sgn, -0.002, -0.024], w0 + [0.083 * sgn, -0.002, -0.026]]
+    )
     v, f, rho = loft(palm, [0.026, 0.041, 0.043], [0.017, 0.015, 0.012], ref, 12, sub=2)
     parts = [_part("skin", v, f, chain_weights(rho, [wrist, wrist], NUM_JOINTS, before=elbow), "skin")]
     radii = {"index": 0.0085, "middle": 0.0088, "ring": 0.0082, "pinky": 0.0072, "thumb": 0.0100}
@@ -216,12 +266,15 @@ def _leg(side: str) -> list[_Part]:
     parts = [_part("cloth", v, f, chain_weights(rho, [J["pelvis"], hip, knee], NUM_JOINTS), "trousers")]
     x = P[ankle][0]
     keys = np.array([[x, 0.055, -0.085], [x, 0.07, -0.03], [P[foot][0], 0.045, 0.10], [P[foot][0], 0.038, 0.165]])
-    v, f, rho = loft(keys, [0.038, 0.045, 0.048, 0.034], [0.04, 0.05, 0.03, 0.022], np.array([0.0, 1.0, 0.0]), 12, sub=3)
+    v, f, rho = loft(
+        keys, [0.038, 0.045, 0.048, 0.034], [0.04, 0.05, 0.03, 0.022], np.array([0.0, 1.0, 0.0]), 12, sub=3
+    )
     parts.append(_part("cloth", v, f, chain_weights(rho, [ankle, ankle, foot], NUM_JOINTS), "shoes"))
     return parts
 
 
 # ---------------------------------------------------------------------------------------- head
+
 
 def _head() -> _Part:
     rows, cols = 40, 48
@@ -229,8 +282,14 @@ def _head() -> _Part:
     lat = np.sign(v) * np.abs(v) ** 1.15 * (np.pi / 2 - 0.02)
     u = np.linspace(-1, 1, cols, endpoint=False)
     lon = np.sign(u) * np.abs(u) ** 1.5 * np.pi
-    d = np.stack([np.cos(lat)[:, None] * np.sin(lon), np.repeat(np.sin(lat)[:, None], cols, 1),
-                  np.cos(lat)[:, None] * np.cos(lon)], -1).reshape(-1, 3)
+    d = np.stack(
+        [
+            np.cos(lat)[:, None] * np.sin(lon),
+            np.repeat(np.sin(lat)[:, None], cols, 1),
+            np.cos(lat)[:, None] * np.cos(lon),
+        ],
+        -1,
+    ).reshape(-1, 3)
     verts = head_point(d)
     verts = np.concatenate([verts, [head_point(np.array([0, -1.0, 0])), head_point(np.array([0, 1.0, 0]))]])
     for eye in EYES:  # eye sockets: press the skin in front of each eye back behind the eyeball
@@ -323,8 +382,10 @@ def _lips() -> _Part:
     radial = normalize(np.stack([cu / a, su / b, np.zeros(nu)], 1))
     fwd = np.array([0.0, 0.0, 1.0])
     ring = np.stack([cx, cy, cz], 1)
-    verts = (ring[:, None] + r[:, None, None] * (np.cos(vv)[None, :, None] * radial[:, None]
-                                                 + 0.9 * np.sin(vv)[None, :, None] * fwd)).reshape(-1, 3)
+    verts = (
+        ring[:, None]
+        + r[:, None, None] * (np.cos(vv)[None, :, None] * radial[:, None] + 0.9 * np.sin(vv)[None, :, None] * fwd)
+    ).reshape(-1, 3)
     faces = orient_outward(verts, _torus_faces(nu, nv), np.repeat(ring, nv, axis=0))
     part = _part("lips", verts, faces, rigid_weights(len(verts), J["head"], NUM_JOINTS), "lips")
     s = np.repeat(su, nv)
@@ -356,7 +417,9 @@ def _mouth_inside() -> list[_Part]:
     faces = orient_outward(verts, grid_faces(ns, nx, wrap=False), verts - [0, 0, 0.01])
     inside = _part("mouth", verts, faces, rigid_weights(len(verts), J["head"], NUM_JOINTS), "mouth")
     sv = np.repeat(s, nx)
-    inside.deltas = _mouth_rig_deltas(verts, (1 + sv) / 2 * prof.ravel(), (1 - sv) / 2 * prof.ravel(), x.ravel() / MOUTH_HALF_WIDTH)
+    inside.deltas = _mouth_rig_deltas(
+        verts, (1 + sv) / 2 * prof.ravel(), (1 - sv) / 2 * prof.ravel(), x.ravel() / MOUTH_HALF_WIDTH
+    )
     parts = [inside]
     for lower, (y0, y1) in ((False, (MOUTH_Y - 0.004, MOUTH_Y + 0.007)), (True, (MOUTH_Y - 0.003, MOUTH_Y + 0.004))):
         tx = np.linspace(-0.019, 0.019, 12)
@@ -379,8 +442,11 @@ def _eyes() -> list[_Part]:
     for side, center in zip(("left", "right"), EYES):
         v, f = ellipsoid(center, np.full(3, EYE_RADIUS), 14, 18)
         cos_axis = normalize(v - center)[:, 2]
-        colors = np.where((cos_axis > np.cos(0.24))[:, None], COLORS["pupil"],
-                          np.where((cos_axis > np.cos(0.48))[:, None], COLORS["iris"], COLORS["sclera"]))
+        colors = np.where(
+            (cos_axis > np.cos(0.24))[:, None],
+            COLORS["pupil"],
+            np.where((cos_axis > np.cos(0.48))[:, None], COLORS["iris"], COLORS["sclera"]),
+        )
         parts.append(_part("eyes", v, f, rigid_weights(len(v), J[f"{side}_eye_smplhf"], NUM_JOINTS), colors))
     return parts
 
@@ -400,18 +466,38 @@ def _lids() -> list[_Part]:
             radius = EYE_RADIUS * (1.16 if upper else 1.10)
             start = LID_UPPER_TOP if upper else LID_LOWER_BOTTOM
             colors = np.where((t > 0.99)[:, None] & upper, COLORS["lash"], COLORS["skin"])
-            verts = lid_positions(np.full(len(t), eye_id), psi, np.full(len(t), start), t, np.full(len(t), radius),
-                                  LID_REST_EDGES, np.full(len(t), upper))
+            verts = lid_positions(
+                np.full(len(t), eye_id),
+                psi,
+                np.full(len(t), start),
+                t,
+                np.full(len(t), radius),
+                LID_REST_EDGES,
+                np.full(len(t), upper),
+            )
             faces = orient_outward(verts, grid_faces(rows, cols, wrap=False), center)
             part = _part("skin", verts, faces, rigid_weights(len(verts), J["head"], NUM_JOINTS), colors)
-            part.lid = {"psi": psi, "start": np.full(len(t), start), "t": t, "radius": np.full(len(t), radius),
-                        "eye": np.full(len(t), eye_id), "upper": np.full(len(t), upper)}
+            part.lid = {
+                "psi": psi,
+                "start": np.full(len(t), start),
+                "t": t,
+                "radius": np.full(len(t), radius),
+                "eye": np.full(len(t), eye_id),
+                "upper": np.full(len(t), upper),
+            }
             parts.append(part)
     return parts
 
 
-def lid_positions(eye: np.ndarray, psi: np.ndarray, start: np.ndarray, t: np.ndarray, radius: np.ndarray,
-                  edges: np.ndarray, upper: np.ndarray | None = None) -> np.ndarray:
+def lid_positions(
+    eye: np.ndarray,
+    psi: np.ndarray,
+    start: np.ndarray,
+    t: np.ndarray,
+    radius: np.ndarray,
+    edges: np.ndarray,
+    upper: np.ndarray | None = None,
+) -> np.ndarray:
     """Lid vertices on the sphere around their eye; ``edges`` (4,) = edge elevations for
     (left upper, left lower, right upper, right lower), radians."""
     kind = np.zeros(len(t), int) if upper is None else np.where(upper, 0, 1)
@@ -461,7 +547,7 @@ def _features() -> list[_Part]:
             "browInnerUp": inner[:, None] * [0, 0.007, 0],
             f"browOuterUp{side}": outer[:, None] * [0, 0.007, 0],
         }
-        for name, dlt in brow.deltas.items():  # ride the forehead: keep the brow on the skin
+        for dlt in brow.deltas.values():  # ride the forehead: keep the brow on the skin
             moved = v + dlt
             dlt[:, 2] += surface_z(moved[:, 0], moved[:, 1]) - surface_z(v[:, 0], v[:, 1])
         parts.append(brow)
@@ -469,6 +555,7 @@ def _features() -> list[_Part]:
 
 
 # ---------------------------------------------------------------------------------------- assembly
+
 
 def _assemble(parts: list[_Part]) -> Avatar:
     order = sorted(range(len(parts)), key=lambda i: list(MATERIALS).index(parts[i].material))
@@ -506,7 +593,8 @@ def _assemble(parts: list[_Part]) -> Avatar:
     lids = Lids(index=np.concatenate(lid_index), **{k: np.concatenate(v) for k, v in lid_fields.items()})
     landmarks = {
         "mouth": np.array([0.0, MOUTH_Y, float(surface_z(0.0, MOUTH_Y))]),
-        "left_eye": EYES[0].copy(), "right_eye": EYES[1].copy(),
+        "left_eye": EYES[0].copy(),
+        "right_eye": EYES[1].copy(),
         "nose": np.array([0.0, 1.603, float(surface_z(0.0, 1.603)) + 0.015]),
         "chin": np.array([0.0, MOUTH_Y - 0.035, float(surface_z(0.0, MOUTH_Y - 0.035))]),
     }
@@ -517,7 +605,10 @@ def _assemble(parts: list[_Part]) -> Avatar:
         weights=_sparse_weights(np.concatenate(weights)),
         material_ranges=ranges,
         material_faces={m: np.concatenate(f).astype(np.uint32) for m, f in mat_faces.items()},
-        shape_index=index, shape_deltas=deltas.astype(np.float32), lids=lids, landmarks=landmarks,
+        shape_index=index,
+        shape_deltas=deltas.astype(np.float32),
+        lids=lids,
+        landmarks=landmarks,
     )
 
 

@@ -96,8 +96,12 @@ def install(renderer: Any) -> None:
             if name not in SOURCES:
                 return super()._load(shader_filename)
             # resolve #ifdef NAME against pyrender's defines, then substitute their values, as pyrender does
-            text = re.sub(r"#ifdef\s+([A-Za-z_][A-Za-z_0-9]*)\s*$",
-                          lambda m: "#if 1" if m.group(1) in self.defines else "#if 0", SOURCES[name], flags=re.MULTILINE)
+            text = re.sub(
+                r"#ifdef\s+([A-Za-z_][A-Za-z_0-9]*)\s*$",
+                lambda m: "#if 1" if m.group(1) in self.defines else "#if 0",
+                SOURCES[name],
+                flags=re.MULTILINE,
+            )
             for define, value in self.defines.items():
                 text = text.replace(define, str(value))
             return text
@@ -108,13 +112,18 @@ def install(renderer: Any) -> None:
         def get_program(self, vertex_shader, fragment_shader, geometry_shader=None, defines=None):  # type: ignore[override]
             defines = dict(defines or {})
             files = [f for f in (vertex_shader, fragment_shader, geometry_shader) if f is not None]
-            key = tuple([OpenGL.contextdata.getContext()]
-                        + sorted([(os.path.basename(f), 1) for f in files] + list(defines.items())))
+            key = tuple(
+                [OpenGL.contextdata.getContext()]
+                + sorted([(os.path.basename(f), 1) for f in files] + list(defines.items()))
+            )
             if key not in self._program_cache:
-                paths = [os.path.join(self.shader_dir, f) if f is not None else None
-                         for f in (vertex_shader, fragment_shader, geometry_shader)]
-                self._program_cache[key] = _Program(vertex_shader=paths[0], fragment_shader=paths[1],
-                                                    geometry_shader=paths[2], defines=defines)
+                paths = [
+                    os.path.join(self.shader_dir, f) if f is not None else None
+                    for f in (vertex_shader, fragment_shader, geometry_shader)
+                ]
+                self._program_cache[key] = _Program(
+                    vertex_shader=paths[0], fragment_shader=paths[1], geometry_shader=paths[2], defines=defines
+                )
             return self._program_cache[key]
 
     renderer._renderer._program_cache = _Cache()

@@ -48,9 +48,17 @@ def _superellipse(theta: np.ndarray, power: float) -> tuple[np.ndarray, np.ndarr
     return np.sign(c) * np.abs(c) ** e, np.sign(s) * np.abs(s) ** e
 
 
-def loft(keys: np.ndarray, ra: np.ndarray, rb: np.ndarray, ref: np.ndarray, segments: int, sub: int = 3,
-         caps: tuple[bool, bool] = (True, True), power: float = 2.0,
-         cap_length: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def loft(
+    keys: np.ndarray,
+    ra: np.ndarray,
+    rb: np.ndarray,
+    ref: np.ndarray,
+    segments: int,
+    sub: int = 3,
+    caps: tuple[bool, bool] = (True, True),
+    power: float = 2.0,
+    cap_length: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A tube through ``keys`` with elliptical rings (radius ``rb`` toward ``ref``, ``ra`` across).
 
     Returns vertices, faces (outward) and each vertex's position along the keys (0 .. K-1),
@@ -68,8 +76,11 @@ def loft(keys: np.ndarray, ra: np.ndarray, rb: np.ndarray, ref: np.ndarray, segm
     b = normalize(ref - np.einsum("ij,j->i", tang, ref)[:, None] * tang)
     a = np.cross(b, tang)
     cos_t, sin_t = _superellipse(np.linspace(0, 2 * np.pi, segments, endpoint=False), power)
-    rings = centers[:, None] + a[:, None] * (ras[:, None, None] * cos_t[None, :, None]) \
+    rings = (
+        centers[:, None]
+        + a[:, None] * (ras[:, None, None] * cos_t[None, :, None])
         + b[:, None] * (rbs[:, None, None] * sin_t[None, :, None])
+    )
     verts = [rings.reshape(-1, 3)]
     axis = [np.repeat(centers, segments, axis=0)]
     rho_v = [np.repeat(rho, segments)]
@@ -82,8 +93,12 @@ def loft(keys: np.ndarray, ra: np.ndarray, rb: np.ndarray, ref: np.ndarray, segm
         ring_idx = np.arange(segments) + end * segments
         for phi in np.radians([40.0, 70.0]):
             scale = np.cos(phi)
-            ring = c + t * r * np.sin(phi) + a[end] * (ras[end] * scale * cos_t[:, None]) \
+            ring = (
+                c
+                + t * r * np.sin(phi)
+                + a[end] * (ras[end] * scale * cos_t[:, None])
                 + b[end] * (rbs[end] * scale * sin_t[:, None])
+            )
             new_idx = np.arange(segments) + count
             verts.append(ring)
             axis.append(np.repeat(c[None], segments, axis=0))
@@ -109,8 +124,14 @@ def ellipsoid(center: np.ndarray, radii: np.ndarray, rows: int, cols: int) -> tu
     """A closed ellipsoid (poles on Y) with outward faces."""
     lat = np.linspace(-np.pi / 2, np.pi / 2, rows)[1:-1]
     lon = np.linspace(0, 2 * np.pi, cols, endpoint=False)
-    d = np.stack([np.cos(lat)[:, None] * np.sin(lon), np.repeat(np.sin(lat)[:, None], cols, 1),
-                  np.cos(lat)[:, None] * np.cos(lon)], -1).reshape(-1, 3)
+    d = np.stack(
+        [
+            np.cos(lat)[:, None] * np.sin(lon),
+            np.repeat(np.sin(lat)[:, None], cols, 1),
+            np.cos(lat)[:, None] * np.cos(lon),
+        ],
+        -1,
+    ).reshape(-1, 3)
     verts = np.concatenate([d, [[0, -1, 0], [0, 1, 0]]]) * radii + center
     n = len(d)
     faces = [grid_faces(rows - 2, cols, wrap=True)]
@@ -120,8 +141,9 @@ def ellipsoid(center: np.ndarray, radii: np.ndarray, rows: int, cols: int) -> tu
     return verts, orient_outward(verts, np.concatenate(faces), np.asarray(center, float))
 
 
-def chain_weights(rho: np.ndarray, owners: list[int], num_joints: int, before: int | None = None,
-                  blend: float = 0.3) -> np.ndarray:
+def chain_weights(
+    rho: np.ndarray, owners: list[int], num_joints: int, before: int | None = None, blend: float = 0.3
+) -> np.ndarray:
     """(N, J) weights for a loft: segment k belongs to ``owners[k]``; joints blend 50/50 at keys."""
     n_seg = len(owners)
     k = np.minimum(rho.astype(int), n_seg - 1)

@@ -17,8 +17,8 @@ import os
 from types import ModuleType
 from typing import Any
 
-from convodrive.errors import UserError
-from convodrive.headless_gl import CANDIDATES, loaded_opengl_platform, probe_in_child
+from convodrive.plumbing.errors import UserError
+from convodrive.plumbing.headless_gl import CANDIDATES, loaded_opengl_platform, probe_in_child
 
 _PROBE = """
 import numpy as np
@@ -78,8 +78,11 @@ def select_platform() -> str:
             _chosen = platform
             return platform
         failures.append(f"{platform}: {reason}")
-    hint = (f"unset PYOPENGL_PLATFORM or set it to {' or '.join(CANDIDATES)}" if requested and requested not in CANDIDATES
-            else "install libegl1 + libgl1-mesa-dri (EGL) or libosmesa6 (OSMesa)")
+    hint = (
+        f"unset PYOPENGL_PLATFORM or set it to {' or '.join(CANDIDATES)}"
+        if requested and requested not in CANDIDATES
+        else "install libegl1 + libgl1-mesa-dri (EGL) or libosmesa6 (OSMesa)"
+    )
     raise UserError(f"render: no headless OpenGL works ({'; '.join(failures)}); {hint}")
 
 

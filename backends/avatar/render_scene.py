@@ -11,18 +11,19 @@ import contextlib
 import dataclasses
 import math
 import time
-from typing import Any, Iterator, Sequence
+from collections.abc import Iterator, Sequence
+from typing import Any
 
 import numpy as np
 
 from convodrive.backends.avatar import avatar_shader
 from convodrive.backends.avatar.avatar_mesh import MATERIALS, build_avatar
-from convodrive.backends.avatar.pyrender_gl import delete_offscreen, import_pyrender
 from convodrive.backends.avatar.mesh_build import smoothstep
+from convodrive.backends.avatar.pyrender_gl import delete_offscreen, import_pyrender
 from convodrive.backends.avatar.skinning import AvatarPoser
-from convodrive.errors import UserError
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.skeleton import REST_POSITIONS
+from convodrive.plumbing.errors import UserError
 
 WALL_Z = -1.3
 WALL_COLOR = (0.62, 0.66, 0.71)
@@ -46,8 +47,9 @@ CAMERAS: dict[str, CameraPreset] = {
 }
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 1.0, 0.0])) -> np.ndarray:
-    """A 4x4 pose for a camera or light at ``eye`` looking at ``target`` (along its -Z)."""
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
+    """A 4x4 pose for a camera or light at ``eye`` looking at ``target`` (along its -Z); Y is up by default."""
+    up = np.array([0.0, 1.0, 0.0]) if up is None else up
     back = eye - target
     back = back / np.linalg.norm(back)
     right = np.cross(up, back)
@@ -133,8 +135,14 @@ def msaa_samples(samples: int) -> Iterator[None]:
 class AvatarRenderer:
     """Offscreen renders of the avatar posed by canonical motion frames."""
 
-    def __init__(self, width: int = 512, height: int = 512, camera: str = "upper", antialias: bool = False,
-                 lean_shader: bool = True) -> None:
+    def __init__(
+        self,
+        width: int = 512,
+        height: int = 512,
+        camera: str = "upper",
+        antialias: bool = False,
+        lean_shader: bool = True,
+    ) -> None:
         if camera not in CAMERAS:
             raise UserError(f"render: camera {camera!r} is not one of {', '.join(CAMERAS)}")
         self.pyrender = pyrender = import_pyrender()
@@ -148,25 +156,34 @@ class AvatarRenderer:
         self._primitives: list[tuple[Any, int, int, np.ndarray]] = []
         prims = []
         for material, (start, end) in self.avatar.material_ranges.items():
-            pbr = pyrender.MetallicRoughnessMaterial(baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0,
-                                                     roughnessFactor=MATERIALS[material])
+            pbr = pyrender.MetallicRoughnessMaterial(
+                baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0, roughnessFactor=MATERIALS[material]
+            )
             colors = self.avatar.colors[start:end]
-            prim = pyrender.Primitive(positions=self.avatar.rest[start:end], normals=np.tile([0.0, 0.0, 1.0], (end - start, 1)),
-                                      color_0=colors, indices=self.avatar.material_faces[material], material=pbr)
+            prim = pyrender.Primitive(
+                positions=self.avatar.rest[start:end],
+                normals=np.tile([0.0, 0.0, 1.0], (end - start, 1)),
+                color_0=colors,
+                indices=self.avatar.material_faces[material],
+                material=pbr,
+            )
             interleaved = np.zeros((end - start, 10), np.float32)
             interleaved[:, 6:] = colors
             prims.append(prim)
             self._primitives.append((prim, start, end, interleaved))
         self.scene.add(pyrender.Mesh(prims))
         preset = CAMERAS[camera]
-        self.camera = pyrender.PerspectiveCamera(yfov=math.radians(preset.yfov_deg), aspectRatio=self.width / self.height,
-                                                 znear=0.05, zfar=30.0)
+        self.camera = pyrender.PerspectiveCamera(
+            yfov=math.radians(preset.yfov_deg), aspectRatio=self.width / self.height, znear=0.05, zfar=30.0
+        )
         self.camera_pose = camera_pose(preset, self.width / self.height)
         self.scene.add(self.camera, pose=self.camera_pose)
         target = np.array(preset.target)
-        for color, intensity, where in (((1.0, 0.96, 0.90), 3.2, (1.6, 2.4, 2.6)),   # key: front left, high
-                                        ((0.85, 0.90, 1.0), 1.3, (-2.2, 1.2, 2.0)),  # fill: front right, low
-                                        ((1.0, 1.0, 1.0), 2.6, (-0.8, 2.6, -2.5))):  # rim: behind
+        for color, intensity, where in (
+            ((1.0, 0.96, 0.90), 3.2, (1.6, 2.4, 2.6)),  # key: front left, high
+            ((0.85, 0.90, 1.0), 1.3, (-2.2, 1.2, 2.0)),  # fill: front right, low
+            ((1.0, 1.0, 1.0), 2.6, (-0.8, 2.6, -2.5)),
+        ):  # rim: behind
             light = pyrender.DirectionalLight(color=np.array(color), intensity=intensity)
             self.scene.add(light, pose=look_at(target + np.array(where), target))
         backdrop, world = backdrop_image(self.width, self.height, self.camera, self.camera_pose)
@@ -207,7 +224,9 @@ class AvatarRenderer:
             d = self._floor_xz - root[[0, 2]]
             shade = 1.0 - 0.45 * np.exp(-((d[:, 0] / 0.32) ** 2 + (d[:, 1] / 0.24) ** 2))
             flat = out.reshape(-1, 3)
-            flat[self._floor_pixels] = (self._backdrop.reshape(-1, 3)[self._floor_pixels] * 255 * shade[:, None]).astype(np.uint8)
+            flat[self._floor_pixels] = (
+                self._backdrop.reshape(-1, 3)[self._floor_pixels] * 255 * shade[:, None]
+            ).astype(np.uint8)
         alpha = rgba[..., 3]
         full = alpha == 255
         out[full] = rgba[..., :3][full]
@@ -241,7 +260,7 @@ class AvatarRenderer:
         canvas[:] = (np.array(BACKGROUND) * 200).astype(np.uint8)
         for i, frame in enumerate(takes):
             r, c = divmod(i, cols)
-            canvas[r * self.height:(r + 1) * self.height, c * self.width:(c + 1) * self.width] = self.render(frame)
+            canvas[r * self.height : (r + 1) * self.height, c * self.width : (c + 1) * self.width] = self.render(frame)
         return canvas
 
     def project(self, points: np.ndarray) -> np.ndarray:

@@ -30,8 +30,9 @@ def skinning_matrices(rotations: np.ndarray, positions: np.ndarray) -> np.ndarra
     return np.concatenate([rotations, t[:, :, None]], axis=2).reshape(len(rotations), 12)
 
 
-def linear_blend_skinning(points: np.ndarray, weights: sp.csr_matrix, rotations: np.ndarray,
-                          positions: np.ndarray) -> np.ndarray:
+def linear_blend_skinning(
+    points: np.ndarray, weights: sp.csr_matrix, rotations: np.ndarray, positions: np.ndarray
+) -> np.ndarray:
     """Skin rest-pose ``points`` (V, 3) with ``weights`` (V, 55) by global joint transforms."""
     blended = np.asarray(weights @ skinning_matrices(rotations, positions)).reshape(-1, 3, 4)
     return np.einsum("vab,vb->va", blended[:, :, :3], points) + blended[:, :, 3]
@@ -55,8 +56,7 @@ class AvatarPoser:
         self.avatar = avatar
         faces = avatar.faces.astype(np.int64)
         v, f = avatar.num_vertices, len(faces)
-        self._vertex_faces = sp.csr_matrix(
-            (np.ones(3 * f), (faces.ravel(), np.repeat(np.arange(f), 3))), shape=(v, f))
+        self._vertex_faces = sp.csr_matrix((np.ones(3 * f), (faces.ravel(), np.repeat(np.arange(f), 3))), shape=(v, f))
         self._faces = faces
         self._deltas = avatar.shape_deltas.reshape(len(SHAPES), -1)
         lids = avatar.lids
@@ -87,10 +87,14 @@ class AvatarPoser:
         for i, side in enumerate(("Left", "Right")):
             blink, wide, squint = (float(face[BLENDSHAPE_INDEX[f"eye{k}{side}"]]) for k in ("Blink", "Wide", "Squint"))
             pitch = float(np.arcsin(np.clip(eye_rotations[i][1, 2], -1, 1)))  # forward's Y: up is positive
-            edges[2 * i] = np.clip(edges[2 * i] + np.radians(12) * wide - np.radians(52) * blink
-                                   - np.radians(10) * squint + 0.7 * pitch, np.radians(-29), np.radians(45))
-            edges[2 * i + 1] = np.clip(edges[2 * i + 1] + np.radians(12) * squint + 0.3 * pitch,
-                                       np.radians(-45), np.radians(-16))
+            edges[2 * i] = np.clip(
+                edges[2 * i] + np.radians(12) * wide - np.radians(52) * blink - np.radians(10) * squint + 0.7 * pitch,
+                np.radians(-29),
+                np.radians(45),
+            )
+            edges[2 * i + 1] = np.clip(
+                edges[2 * i + 1] + np.radians(12) * squint + 0.3 * pitch, np.radians(-45), np.radians(-16)
+            )
         return edges
 
     def pose(self, frame: MotionFrame) -> tuple[np.ndarray, np.ndarray]:

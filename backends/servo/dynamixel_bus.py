@@ -22,7 +22,7 @@ import serial
 
 from convodrive.backends.servo.dynamixel_table import ControlTable, Model, Register, decode, encode
 from convodrive.backends.servo.servo_base import PortLost, open_error
-from convodrive.errors import UserError
+from convodrive.plumbing.errors import UserError
 
 PKT_ID, PKT_ERROR, PKT_PARAMETER0 = 4, 8, 9  # status packet offsets (PARAMETER0 after the error byte)
 
@@ -67,12 +67,20 @@ class ServoHealth:
         now = time.monotonic() if now is None else now
         status = "lost" if self.lost else ("fault" if self.hardware_error else "ok")
         return {
-            "id": self.id, "status": status,
+            "id": self.id,
+            "status": status,
             "last_seen_s": None if self.last_seen is None else round(now - self.last_seen, 3),
-            "timeouts": self.timeouts, "corrupt": self.corrupt, "retries": self.retries, "refused": self.refused,
-            "lost_events": self.lost_events, "hardware_error": self.hardware_error,
-            "faults": list(self.faults), "faults_seen": sorted(self.faults_seen),
-            "position": self.position, "temperature_c": self.temperature, "voltage_v": self.voltage,
+            "timeouts": self.timeouts,
+            "corrupt": self.corrupt,
+            "retries": self.retries,
+            "refused": self.refused,
+            "lost_events": self.lost_events,
+            "hardware_error": self.hardware_error,
+            "faults": list(self.faults),
+            "faults_seen": sorted(self.faults_seen),
+            "position": self.position,
+            "temperature_c": self.temperature,
+            "voltage_v": self.voltage,
         }
 
 
@@ -93,8 +101,16 @@ class LatencyPort(sdk.PortHandler):
 
 
 class DynamixelBus:
-    def __init__(self, port: str, motors: list[Motor], *, baudrate: int = 1_000_000, retries: int = 2,
-                 latency_ms: float = 16.0, backoff_s: tuple[float, float] = (0.2, 2.0)) -> None:
+    def __init__(
+        self,
+        port: str,
+        motors: list[Motor],
+        *,
+        baudrate: int = 1_000_000,
+        retries: int = 2,
+        latency_ms: float = 16.0,
+        backoff_s: tuple[float, float] = (0.2, 2.0),
+    ) -> None:
         self.port_name = port
         self.baudrate = baudrate
         self.motors = {m.name: m for m in motors}
@@ -231,10 +247,12 @@ class DynamixelBus:
                 data = raw.get(name)
                 if data is None:  # retry alone, with back-off between attempts
                     motor = self.motors[name]
-                    reply = self._txrx(name, lambda p, m=motor: _read_span(self.packets, p, m.id, start, length))
+                    reply = self._txrx(
+                        name, lambda p, m=motor, s=start, n=length: _read_span(self.packets, p, m.id, s, n)
+                    )
                     data = reply[0] if reply is not None and not reply[1] & 0x7F else None
                 if data is not None:
-                    out[name] = {r: decode(data[reg.address - start:], reg) for r, reg in regs.items()}
+                    out[name] = {r: decode(data[reg.address - start :], reg) for r, reg in regs.items()}
         return out
 
     def _sync_read_span(self, names: list[str], start: int, length: int) -> dict[str, list[int]]:
@@ -254,7 +272,7 @@ class DynamixelBus:
                 if result == sdk.COMM_SUCCESS and sid in pending:
                     pending.discard(sid)
                     self._seen(self.health[by_id[sid]], packet[PKT_ERROR])
-                    got[by_id[sid]] = list(packet[PKT_PARAMETER0: PKT_PARAMETER0 + length])
+                    got[by_id[sid]] = list(packet[PKT_PARAMETER0 : PKT_PARAMETER0 + length])
                 elif result == sdk.COMM_RX_CORRUPT and sid in pending and len(packet) >= 11 + length:
                     self.health[by_id[sid]].corrupt += 1  # whole packet, bad CRC: try the others
                 elif result != sdk.COMM_SUCCESS:

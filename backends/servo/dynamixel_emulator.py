@@ -16,12 +16,13 @@ import dataclasses
 import random
 import threading
 import time
-from typing import Callable, Iterable
+from collections.abc import Callable, Iterable
 
 from convodrive.backends.servo import dynamixel_packet as dp
-from convodrive.backends.servo.dynamixel_table import Model, decode, encode, model as lookup_model
+from convodrive.backends.servo.dynamixel_table import Model, decode, encode
+from convodrive.backends.servo.dynamixel_table import model as lookup_model
 from convodrive.backends.servo.pty_server import PtyDevice, PtyServer
-from convodrive.errors import UserError
+from convodrive.plumbing.errors import UserError
 
 Clock = Callable[[], float]
 
@@ -60,11 +61,11 @@ class EmulatedServo:
     # ------------------------------------------------------------- registers
     def get(self, name: str) -> int:
         reg = self.table.reg(name)
-        return decode(self.mem[reg.address: reg.address + reg.size], reg)
+        return decode(self.mem[reg.address : reg.address + reg.size], reg)
 
     def _set(self, name: str, value: int) -> None:
         reg = self.table.reg(name)
-        self.mem[reg.address: reg.address + reg.size] = bytes(encode(value, reg))
+        self.mem[reg.address : reg.address + reg.size] = bytes(encode(value, reg))
 
     @property
     def torque(self) -> bool:
@@ -83,27 +84,30 @@ class EmulatedServo:
         if address + length > len(self.mem) or length == 0:
             return dp.ERR_DATA_RANGE, b""
         self.update()
-        return 0, bytes(self.mem[address: address + length])
+        return 0, bytes(self.mem[address : address + length])
 
     def write(self, address: int, data: bytes) -> int:
         """Apply a write and return the status error number (0 = accepted)."""
         if address + len(data) > len(self.mem) or not data:
             return dp.ERR_DATA_RANGE
-        touched = [(n, r) for n, r in self.table.registers.items()
-                   if r.address < address + len(data) and address < r.address + r.size]
-        for name, reg in touched:
+        touched = [
+            (n, r)
+            for n, r in self.table.registers.items()
+            if r.address < address + len(data) and address < r.address + r.size
+        ]
+        for _name, reg in touched:
             if not reg.writable:
                 return dp.ERR_ACCESS
             if reg.eeprom and self.torque:
                 return dp.ERR_ACCESS
         goal = self.table.reg("Goal_Position")
         if goal.address >= address and goal.address + goal.size <= address + len(data):
-            value = decode(data[goal.address - address:], goal)
+            value = decode(data[goal.address - address :], goal)
             low, high = self._position_limits()
             if not low <= value <= high:
                 return dp.ERR_DATA_LIMIT
         self.update()
-        self.mem[address: address + len(data)] = data
+        self.mem[address : address + len(data)] = data
         return 0
 
     def _position_limits(self) -> tuple[int, int]:
@@ -161,15 +165,30 @@ class LoggedWrite:
 class DynamixelEmulator(PtyDevice):
     """Servos on one emulated bus. A context manager; ``port`` is the path to open."""
 
-    def __init__(self, ids: Iterable[int] = range(1, 8), model: str = "xl330", *, baudrate: int = 1_000_000,
-                 link: str | None = None, clock: Clock = time.monotonic, seed: int = 0) -> None:
+    def __init__(
+        self,
+        ids: Iterable[int] = range(1, 8),
+        model: str = "xl330",
+        *,
+        baudrate: int = 1_000_000,
+        link: str | None = None,
+        clock: Clock = time.monotonic,
+        seed: int = 0,
+    ) -> None:
         spec = lookup_model(model)
         self.clock = clock
         self.baudrate = baudrate
         self.servos: dict[int, EmulatedServo] = {i: EmulatedServo(i, spec, clock) for i in ids}
         self.goal_log: list[LoggedWrite] = []
         self.torque_log: list[LoggedWrite] = []  # every accepted Torque_Enable write
-        self.counters = {"packets": 0, "replies": 0, "dropped": 0, "corrupted": 0, "crc_errors_in": 0, "refused_goals": 0}
+        self.counters = {
+            "packets": 0,
+            "replies": 0,
+            "dropped": 0,
+            "corrupted": 0,
+            "crc_errors_in": 0,
+            "refused_goals": 0,
+        }
         self._lock = threading.RLock()
         self._buffer = bytearray()
         self._rng = random.Random(seed)
@@ -220,7 +239,7 @@ class DynamixelEmulator(PtyDevice):
     def replug(self) -> None:
         self._server.replug()
 
-    def schedule(self, fault: "Fault") -> None:
+    def schedule(self, fault: Fault) -> None:
         self._server.after(fault.at, lambda: fault.apply(self))
 
     # ------------------------------------------------------------- protocol
@@ -303,29 +322,39 @@ class DynamixelEmulator(PtyDevice):
             return [self._status(s, dp.ERR_CRC) for s in targets if unicast]
         params = p.params
         if p.inst == dp.PING:
-            return [self._status(s, 0, bytes(encode(s.model.number, s.table.reg("Model_Number")))
-                                 + bytes([s.model.firmware])) for s in targets]
+            return [
+                self._status(
+                    s, 0, bytes(encode(s.model.number, s.table.reg("Model_Number"))) + bytes([s.model.firmware])
+                )
+                for s in targets
+            ]
         if p.inst in (dp.READ, dp.WRITE, dp.REG_WRITE, dp.ACTION, dp.REBOOT, dp.FACTORY_RESET, dp.CLEAR):
-            return [r for s in targets if (r := self._unicast(s, p.inst, params)) is not None and unicast
-                    and self._replies_allowed(s, p.inst)]
+            return [
+                r
+                for s in targets
+                if (r := self._unicast(s, p.inst, params)) is not None and unicast and self._replies_allowed(s, p.inst)
+            ]
         if p.inst == dp.SYNC_WRITE and len(params) >= 4:
             address, length = _u16(params, 0), _u16(params, 2)
             for k in range(4, len(params) - length, length + 1):
-                self._write_logged(params[k], address, params[k + 1: k + 1 + length], dp.SYNC_WRITE)
+                self._write_logged(params[k], address, params[k + 1 : k + 1 + length], dp.SYNC_WRITE)
             return []
         if p.inst == dp.BULK_WRITE:
             k = 0
             while k + 5 <= len(params):
                 sid, address, length = params[k], _u16(params, k + 1), _u16(params, k + 3)
-                self._write_logged(sid, address, params[k + 5: k + 5 + length], dp.BULK_WRITE)
+                self._write_logged(sid, address, params[k + 5 : k + 5 + length], dp.BULK_WRITE)
                 k += 5 + length
             return []
         if p.inst == dp.SYNC_READ and len(params) >= 4:
             address, length = _u16(params, 0), _u16(params, 2)
             return [self._read_reply(sid, address, length) for sid in params[4:] if self._answers(sid)]
         if p.inst == dp.BULK_READ:
-            return [self._read_reply(params[k], _u16(params, k + 1), _u16(params, k + 3))
-                    for k in range(0, len(params) - 4, 5) if self._answers(params[k])]
+            return [
+                self._read_reply(params[k], _u16(params, k + 1), _u16(params, k + 3))
+                for k in range(0, len(params) - 4, 5)
+                if self._answers(params[k])
+            ]
         return [self._status(s, dp.ERR_INSTRUCTION) for s in targets if unicast]
 
     def _answers(self, servo_id: int) -> bool:
@@ -395,7 +424,7 @@ class Fault:
     at: float = 0.0
     duration: float | None = None
 
-    def apply(self, emu: "DynamixelEmulator") -> None:
+    def apply(self, emu: DynamixelEmulator) -> None:
         if self.kind == "drop":
             emu.drop_rate = self.arg if self.arg is not None else 0.05
         elif self.kind == "corrupt":
@@ -426,8 +455,14 @@ def parse_fault(text: str) -> Fault:
     return fault
 
 
-def start_emulated_head(ids: Iterable[int] = range(1, 8), model: str = "xl330", *, link: str | None = None,
-                        faults: Iterable[Fault] = (), baudrate: int = 1_000_000) -> DynamixelEmulator:
+def start_emulated_head(
+    ids: Iterable[int] = range(1, 8),
+    model: str = "xl330",
+    *,
+    link: str | None = None,
+    faults: Iterable[Fault] = (),
+    baudrate: int = 1_000_000,
+) -> DynamixelEmulator:
     """An emulated servo head on a fresh pty, already serving. Use as a context manager:
 
     ``with start_emulated_head() as head: options["port"] = head.port`` ... ``head.goal_log``.

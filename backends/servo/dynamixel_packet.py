@@ -18,7 +18,15 @@ PING, READ, WRITE, REG_WRITE, ACTION, FACTORY_RESET, REBOOT, CLEAR = 0x01, 0x02,
 STATUS, SYNC_READ, SYNC_WRITE, BULK_READ, BULK_WRITE = 0x55, 0x82, 0x83, 0x92, 0x93
 
 # Status packet error byte: bit 7 = hardware alert, low bits = error number.
-ERR_RESULT_FAIL, ERR_INSTRUCTION, ERR_CRC, ERR_DATA_RANGE, ERR_DATA_LENGTH, ERR_DATA_LIMIT, ERR_ACCESS = 1, 2, 3, 4, 5, 6, 7
+ERR_RESULT_FAIL, ERR_INSTRUCTION, ERR_CRC, ERR_DATA_RANGE, ERR_DATA_LENGTH, ERR_DATA_LIMIT, ERR_ACCESS = (
+    1,
+    2,
+    3,
+    4,
+    5,
+    6,
+    7,
+)
 ERR_ALERT = 0x80
 
 
@@ -58,7 +66,14 @@ def unstuff(body: bytes) -> bytes:
     i = 0
     while i < len(body):
         out.append(body[i])
-        if body[i] == 0xFD and len(out) >= 3 and out[-3] == 0xFF and out[-2] == 0xFF and i + 1 < len(body) and body[i + 1] == 0xFD:
+        if (
+            body[i] == 0xFD
+            and len(out) >= 3
+            and out[-3] == 0xFF
+            and out[-2] == 0xFF
+            and i + 1 < len(body)
+            and body[i + 1] == 0xFD
+        ):
             i += 1  # drop the stuffed FD
         i += 1
     return bytes(out)

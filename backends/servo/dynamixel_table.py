@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from convodrive.errors import UserError
+from convodrive.plumbing.errors import UserError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,11 +116,22 @@ X_SERIES = ControlTable(
     acceleration_unit_rpm2=214.577,
     error_bits={0: "input_voltage", 2: "overheating", 3: "motor_encoder", 4: "electrical_shock", 5: "overload"},
     defaults={
-        "Baud_Rate": 1, "Return_Delay_Time": 250, "Operating_Mode": 3, "Temperature_Limit": 70,
-        "Max_Voltage_Limit": 70, "Min_Voltage_Limit": 35, "Velocity_Limit": 445,
-        "Max_Position_Limit": 4095, "Min_Position_Limit": 0, "Shutdown": 52, "Status_Return_Level": 2,
-        "Position_P_Gain": 400, "Goal_Position": 2048, "Present_Position": 2048,
-        "Present_Input_Voltage": 50, "Present_Temperature": 30,
+        "Baud_Rate": 1,
+        "Return_Delay_Time": 250,
+        "Operating_Mode": 3,
+        "Temperature_Limit": 70,
+        "Max_Voltage_Limit": 70,
+        "Min_Voltage_Limit": 35,
+        "Velocity_Limit": 445,
+        "Max_Position_Limit": 4095,
+        "Min_Position_Limit": 0,
+        "Shutdown": 52,
+        "Status_Return_Level": 2,
+        "Position_P_Gain": 400,
+        "Goal_Position": 2048,
+        "Present_Position": 2048,
+        "Present_Input_Voltage": 50,
+        "Present_Temperature": 30,
     },
 )
 
@@ -166,10 +177,23 @@ XL320 = ControlTable(
     acceleration_unit_rpm2=None,
     error_bits={0: "overload", 1: "overheating", 2: "input_voltage"},
     defaults={
-        "Baud_Rate": 3, "Return_Delay_Time": 250, "Control_Mode": 2, "Temperature_Limit": 65,
-        "Min_Voltage_Limit": 60, "Max_Voltage_Limit": 90, "Max_Torque": 1023, "Status_Return_Level": 2,
-        "Shutdown": 3, "CCW_Angle_Limit": 1023, "P_Gain": 32, "Torque_Limit": 1023, "Punch": 32,
-        "Goal_Position": 512, "Present_Position": 512, "Present_Input_Voltage": 74, "Present_Temperature": 30,
+        "Baud_Rate": 3,
+        "Return_Delay_Time": 250,
+        "Control_Mode": 2,
+        "Temperature_Limit": 65,
+        "Min_Voltage_Limit": 60,
+        "Max_Voltage_Limit": 90,
+        "Max_Torque": 1023,
+        "Status_Return_Level": 2,
+        "Shutdown": 3,
+        "CCW_Angle_Limit": 1023,
+        "P_Gain": 32,
+        "Torque_Limit": 1023,
+        "Punch": 32,
+        "Goal_Position": 512,
+        "Present_Position": 512,
+        "Present_Input_Voltage": 74,
+        "Present_Temperature": 30,
     },
 )
 
@@ -196,8 +220,13 @@ MODELS: dict[str, Model] = {
         Model("xl320", 350, XL320, firmware=35),
     )
 }
-ALIASES = {"xl330": "xl330-m288", "xm430": "xm430-w350", "xl430": "xl430-w250", "xc330": "xc330-t288",
-           "xl-320": "xl320"}
+ALIASES = {
+    "xl330": "xl330-m288",
+    "xm430": "xm430-w350",
+    "xl430": "xl430-w250",
+    "xc330": "xc330-t288",
+    "xl-320": "xl320",
+}
 MODEL_BY_NUMBER: dict[int, Model] = {m.number: m for m in MODELS.values()}
 
 # Baud_Rate register value -> bits per second (X-series; the XL-320 uses 0..3 for the first four).

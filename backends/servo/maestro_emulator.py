@@ -12,15 +12,22 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 from convodrive.backends.servo import maestro_protocol as mp
 from convodrive.backends.servo.pty_server import PtyDevice, PtyServer
-from convodrive.errors import UserError
+from convodrive.plumbing.errors import UserError
 
 # Command byte -> number of data bytes that follow it (SET_MULTIPLE_TARGETS is variable).
-DATA_BYTES = {mp.SET_TARGET: 3, mp.SET_SPEED: 3, mp.SET_ACCELERATION: 3, mp.GET_POSITION: 1,
-              mp.GET_MOVING_STATE: 0, mp.GET_ERRORS: 0, mp.GO_HOME: 0}
+DATA_BYTES = {
+    mp.SET_TARGET: 3,
+    mp.SET_SPEED: 3,
+    mp.SET_ACCELERATION: 3,
+    mp.GET_POSITION: 1,
+    mp.GET_MOVING_STATE: 0,
+    mp.GET_ERRORS: 0,
+    mp.GO_HOME: 0,
+}
 
 
 @dataclasses.dataclass
@@ -57,8 +64,14 @@ class TargetWrite:
 class MaestroEmulator(PtyDevice):
     """A Mini Maestro with ``channels`` servo channels. A context manager; ``port`` is the path."""
 
-    def __init__(self, channels: int = 12, *, device: int = 12, link: str | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self,
+        channels: int = 12,
+        *,
+        device: int = 12,
+        link: str | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.channels = [Channel() for _ in range(channels)]
         self.device = device
         self.clock = clock
@@ -143,7 +156,7 @@ class MaestroEmulator(PtyDevice):
         need = self._need(command, buf, start)
         if need is None:
             return None
-        args = bytes(buf[start: start + need])
+        args = bytes(buf[start : start + need])
         del buf[: start + need]
         if any(b >= 0x80 for b in args):
             self.errors |= 1 << 4

@@ -11,8 +11,14 @@ SET_TARGET, SET_MULTIPLE_TARGETS, SET_SPEED, SET_ACCELERATION = 0x84, 0x9F, 0x87
 GET_POSITION, GET_MOVING_STATE, GET_ERRORS, GO_HOME = 0x90, 0x93, 0xA1, 0xA2
 
 ERROR_BITS = {
-    0: "serial_signal", 1: "serial_overrun", 2: "serial_buffer_full", 3: "serial_crc",
-    4: "serial_protocol", 5: "serial_timeout", 6: "script_stack", 7: "script_call_stack",
+    0: "serial_signal",
+    1: "serial_overrun",
+    2: "serial_buffer_full",
+    3: "serial_crc",
+    4: "serial_protocol",
+    5: "serial_timeout",
+    6: "script_stack",
+    7: "script_call_stack",
     8: "script_program_counter",
 }
 

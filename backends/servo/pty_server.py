@@ -13,15 +13,16 @@ import select
 import threading
 import time
 import tty
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 
 class PtyServer:
     """Calls ``on_bytes(data)`` for every chunk the client writes; ``send`` answers it."""
 
-    def __init__(self, on_bytes: Callable[[bytes], None], link: str | os.PathLike[str] | None = None,
-                 name: str = "pty-server") -> None:
+    def __init__(
+        self, on_bytes: Callable[[bytes], None], link: str | os.PathLike[str] | None = None, name: str = "pty-server"
+    ) -> None:
         self._on_bytes = on_bytes
         self._link = Path(link) if link else None
         self._name = name
@@ -44,7 +45,7 @@ class PtyServer:
     def connected(self) -> bool:
         return self._master >= 0
 
-    def start(self) -> "PtyServer":
+    def start(self) -> PtyServer:
         self._open_pty()
         self._thread = threading.Thread(target=self._serve, name=self._name, daemon=True)
         self._thread.start()
@@ -153,14 +154,14 @@ class PtyDevice:
     def port(self) -> str:
         return self._server.port
 
-    def start(self) -> "PtyDevice":
+    def start(self) -> PtyDevice:
         self._server.start()
         return self
 
     def stop(self) -> None:
         self._server.stop()
 
-    def __enter__(self) -> "PtyDevice":
+    def __enter__(self) -> PtyDevice:
         return self if self._server.connected else self.start()
 
     def __exit__(self, *exc: object) -> None:

@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from convodrive.targets import TargetSpec
+from convodrive.motion.targets import TargetSpec
 
 TOLERANCE = 1e-6
 """Overshoot (in joint units) that is clamped rather than refused: float noise, not a bad frame."""
@@ -89,8 +89,9 @@ class SafetyGuard:
         if np.any(bad):
             self.refused += 1
             i = int(np.flatnonzero(bad)[0])
-            raise Refused(f"{self.spec.names[i]}={values[i]:.4g} outside "
-                          f"[{self.spec.lower[i]:.4g}, {self.spec.upper[i]:.4g}]")
+            raise Refused(
+                f"{self.spec.names[i]}={values[i]:.4g} outside [{self.spec.lower[i]:.4g}, {self.spec.upper[i]:.4g}]"
+            )
         return values
 
     def limit(self, target: np.ndarray, dt: float) -> np.ndarray:

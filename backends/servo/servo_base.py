@@ -23,8 +23,8 @@ import numpy as np
 
 from convodrive.backends.base import Backend, Session
 from convodrive.backends.servo.safety import Ease, RawMap, Refused, SafetyGuard, Watchdog
-from convodrive.errors import UserError
-from convodrive.targets import TargetFrame, TargetSpec
+from convodrive.motion.targets import TargetFrame, TargetSpec
+from convodrive.plumbing.errors import UserError
 
 MAX_EVENTS = 100
 TICK_HZ = 30.0
@@ -40,8 +40,12 @@ def open_error(port: str, exc: Exception) -> UserError:
     errno = getattr(exc, "errno", None) or (args[0] if args and isinstance(args[0], int) else None)
     nested = re.search(r"\((\d+), '", str(exc))  # pyserial wraps termios errors in its message
     errno = errno or (int(nested.group(1)) if nested else None)
-    reason = {2: "no such port", 13: "permission denied (is your user in the dialout group?)",
-              16: "port is busy (another program has it open)", 25: "not a serial port"}.get(errno or 0)
+    reason = {
+        2: "no such port",
+        13: "permission denied (is your user in the dialout group?)",
+        16: "port is busy (another program has it open)",
+        25: "not a serial port",
+    }.get(errno or 0)
     if reason is None:
         reason = str(args[-1] if args and isinstance(args[-1], str) else exc).split(": ")[-1]
     return UserError(f"{port}: cannot open serial port ({reason})")
@@ -115,8 +119,10 @@ class ServoBackend(Backend):
     def open(self, spec: TargetSpec, session: Session) -> None:
         super().open(spec, session)
         if not self.options.get("port"):
-            raise UserError(f"backends.{self.name}.port: no serial port given (run `convodrive emulate "
-                            f"{self.name}` for an emulated one and use the path it prints)")
+            raise UserError(
+                f"backends.{self.name}.port: no serial port given (run `convodrive emulate "
+                f"{self.name}` for an emulated one and use the path it prints)"
+            )
         raw_map = self._hw_calibration(spec)
         self.columns = np.array([spec.index[n] for n in self.names])
         try:
@@ -204,8 +210,12 @@ class ServoBackend(Backend):
     def _watch(self, now: float) -> None:
         guard = self.guard
         assert guard is not None
-        if self._ease is None and self.watchdog.expired(now) and guard.last is not None \
-                and not np.allclose(guard.last, guard.neutral, atol=1e-9):
+        if (
+            self._ease is None
+            and self.watchdog.expired(now)
+            and guard.last is not None
+            and not np.allclose(guard.last, guard.neutral, atol=1e-9)
+        ):
             self.watchdog.tripped += 1
             self._event("watchdog", None, f"no frame for {self.watchdog.timeout:.2f} s, easing to neutral", fault=False)
             self._ease = Ease(guard.last.copy(), guard.neutral.copy(), self.ease_s, now)
@@ -273,12 +283,17 @@ class ServoBackend(Backend):
         if self.guard is not None and not self._closed and not self._hw_connected():
             current.append("port_lost")
         return {
-            "status": "degraded" if current else "ok", "port": self.options.get("port"),
-            "active_faults": sorted(set(current)), "faults": sorted(self._faults),
-            "frames": self._counts["frames"], "frames_refused": self._counts["frames_refused"],
-            "watchdog_trips": self.watchdog.tripped, "servos": servos,
+            "status": "degraded" if current else "ok",
+            "port": self.options.get("port"),
+            "active_faults": sorted(set(current)),
+            "faults": sorted(self._faults),
+            "frames": self._counts["frames"],
+            "frames_refused": self._counts["frames_refused"],
+            "watchdog_trips": self.watchdog.tripped,
+            "servos": servos,
             "torque_off": (bool(self.names) and all(self._torque_off.get(n, False) for n in self.names))
-            if self._closed else None,
+            if self._closed
+            else None,
         }
 
     def report(self) -> dict[str, Any]:
@@ -286,27 +301,45 @@ class ServoBackend(Backend):
         torque_off = bool(self.names) and all(self._torque_off.get(n, False) for n in self.names)
         status = "failed" if not torque_off else ("degraded" if self._faults else "ok")
         return {
-            "status": status, "faults": sorted(self._faults), "port": self.options.get("port"),
-            "frames": self._counts["frames"], "frames_refused": self._counts["frames_refused"],
-            "frames_unsent": self._counts["frames_unsent"], "goal_writes": self._counts["goal_writes"],
-            "watchdog_trips": self.watchdog.tripped, "eased_to_neutral": self._eased,
-            "torque_off": torque_off, "torque_off_per_joint": dict(self._torque_off),
+            "status": status,
+            "faults": sorted(self._faults),
+            "port": self.options.get("port"),
+            "frames": self._counts["frames"],
+            "frames_refused": self._counts["frames_refused"],
+            "frames_unsent": self._counts["frames_unsent"],
+            "goal_writes": self._counts["goal_writes"],
+            "watchdog_trips": self.watchdog.tripped,
+            "eased_to_neutral": self._eased,
+            "torque_off": torque_off,
+            "torque_off_per_joint": dict(self._torque_off),
             "bus_ms": {"write": percentiles(self._write_ms), "health_read": percentiles(self._read_ms)},
             "clamped_frames": self.guard.clamped if self.guard else 0,
-            "servos": self._hw_health(), "events": list(self._events),
+            "servos": self._hw_health(),
+            "events": list(self._events),
         }
 
 
 def sub_spec(spec: TargetSpec, names: list[str]) -> TargetSpec:
     """The spec restricted to the joints a backend drives."""
     idx = [spec.index[n] for n in names]
-    return TargetSpec(spec.name, tuple(names), spec.lower[idx], spec.upper[idx], spec.neutral[idx],
-                      spec.max_velocity[idx], spec.max_acceleration[idx], tuple(spec.units[i] for i in idx))
+    return TargetSpec(
+        spec.name,
+        tuple(names),
+        spec.lower[idx],
+        spec.upper[idx],
+        spec.neutral[idx],
+        spec.max_velocity[idx],
+        spec.max_acceleration[idx],
+        tuple(spec.units[i] for i in idx),
+    )
 
 
 def percentiles(values: collections.deque[float]) -> dict[str, float | None]:
     if not values:
         return {"p50": None, "p99": None, "n": 0}
     arr = np.fromiter(values, float)
-    return {"p50": round(float(np.percentile(arr, 50)), 3), "p99": round(float(np.percentile(arr, 99)), 3),
-            "n": int(arr.size)}
+    return {
+        "p50": round(float(np.percentile(arr, 50)), 3),
+        "p99": round(float(np.percentile(arr, 99)), 3),
+        "n": int(arr.size),
+    }

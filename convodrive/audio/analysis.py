@@ -14,7 +14,13 @@ import dataclasses
 import numpy as np
 
 from convodrive.audio.features import (
-    TRACK_LOOKAHEAD, WINDOW, VoiceParams, VoiceTracker, frame_centre, raw_frames, samples_needed,
+    TRACK_LOOKAHEAD,
+    WINDOW,
+    VoiceParams,
+    VoiceTracker,
+    frame_centre,
+    raw_frames,
+    samples_needed,
 )
 from convodrive.audio.phones import BLOCK, PhoneTracker
 from convodrive.audio.visemes import NUM_VISEMES, spectral_visemes
@@ -39,13 +45,16 @@ class FrameBatch:
         return len(self.visemes)
 
     @classmethod
-    def concat(cls, batches: list["FrameBatch"]) -> "FrameBatch":
+    def concat(cls, batches: list[FrameBatch]) -> FrameBatch:
         def cat(dicts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
             return {k: np.concatenate([d[k] for d in dicts]) for k in dicts[0]}
 
         return cls(
-            batches[0].first, cat([b.self_voice for b in batches]), cat([b.other_voice for b in batches]),
-            np.concatenate([b.visemes for b in batches]), np.concatenate([b.from_phones for b in batches]),
+            batches[0].first,
+            cat([b.self_voice for b in batches]),
+            cat([b.other_voice for b in batches]),
+            np.concatenate([b.visemes for b in batches]),
+            np.concatenate([b.from_phones for b in batches]),
         )
 
 
@@ -146,8 +155,14 @@ class DyadicAnalyzer:
         first = self._pending_first
         take_s = {k: v[:ready] for k, v in s.items()}
         take_o = {k: v[:ready] for k, v in o.items()}
-        visemes = spectral_visemes(take_s["f1_frac"], take_s["f2_frac"], take_s["low_frac"], take_s["hiss_frac"],
-                                   take_s["voiced"], take_s["vad"])
+        visemes = spectral_visemes(
+            take_s["f1_frac"],
+            take_s["f2_frac"],
+            take_s["low_frac"],
+            take_s["hiss_frac"],
+            take_s["voiced"],
+            take_s["vad"],
+        )
         from_phones = np.zeros(ready, bool)
         if self._phones is not None:
             phone = decided[first - self._vis_first : first - self._vis_first + ready]

@@ -81,8 +81,16 @@ def raw_frames(padded: np.ndarray, pad_start: int, first: int, count: int) -> di
         win16 = sliding_window_view(padded, WINDOW)[centres - WINDOW // 2].astype(np.float64)
         f0[rows], best[rows] = _pitch(win16)
         centroid[rows], f1[rows], f2[rows], low[rows], hiss[rows] = _spectral_shape(win16)
-    return {"db": db, "f0": f0, "periodicity": best, "centroid": centroid, "f1_frac": f1, "f2_frac": f2,
-            "low_frac": low, "hiss_frac": hiss}
+    return {
+        "db": db,
+        "f0": f0,
+        "periodicity": best,
+        "centroid": centroid,
+        "f1_frac": f1,
+        "f2_frac": f2,
+        "low_frac": low,
+        "hiss_frac": hiss,
+    }
 
 
 def _pitch(win16: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -202,8 +210,22 @@ class VoiceParams:
 
 
 TRACK_FIELDS = (
-    "db", "env", "vad", "voiced", "f0", "pitch_st", "accent", "nucleus", "stress", "onset", "laugh",
-    "centroid", "f1_frac", "f2_frac", "low_frac", "hiss_frac",
+    "db",
+    "env",
+    "vad",
+    "voiced",
+    "f0",
+    "pitch_st",
+    "accent",
+    "nucleus",
+    "stress",
+    "onset",
+    "laugh",
+    "centroid",
+    "f1_frac",
+    "f2_frac",
+    "low_frac",
+    "hiss_frac",
 )
 
 
@@ -294,8 +316,12 @@ class VoiceTracker:
             self._since_nucleus += 1
             w0, w1 = max(i - 2, 0), i + TRACK_LOOKAHEAD + 1
             # Pitch accent: a local F0 peak well above the speaker's running baseline, on a loud frame.
-            if voiced and rel > p.accent_st and env > 0.35 and self._since_accent > 8 and st >= max(
-                st_all[k] if periodic[k] else -99.0 for k in range(w0, w1)
+            if (
+                voiced
+                and rel > p.accent_st
+                and env > 0.35
+                and self._since_accent > 8
+                and st >= max(st_all[k] if periodic[k] else -99.0 for k in range(w0, w1))
             ):
                 out["accent"][j] = min(1.0, rel / 6.0)
                 self._since_accent = 0
@@ -314,8 +340,13 @@ class VoiceTracker:
             if self._vad and rise > 0.25:
                 out["onset"][j] = min(1.0, rise)
             o_laugh[j] = self._laughter()
-        for name, values in (("vad", o_vad), ("voiced", o_voiced), ("env", o_env), ("pitch_st", o_st),
-                             ("laugh", o_laugh)):
+        for name, values in (
+            ("vad", o_vad),
+            ("voiced", o_voiced),
+            ("env", o_env),
+            ("pitch_st", o_st),
+            ("laugh", o_laugh),
+        ):
             out[name] = np.array(values, float)
         self._next = end
         # Keep only the history later frames still look at.

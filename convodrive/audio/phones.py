@@ -26,10 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from convodrive.atomic import write_bytes_atomic, write_text_atomic
-
 from convodrive.audio.source import CHUNK_SAMPLES
 from convodrive.audio.visemes import phone_viseme
+from convodrive.plumbing.atomic import write_bytes_atomic, write_text_atomic
 
 BLOCK = CHUNK_SAMPLES
 _MAX_UTTERANCE_BLOCKS = 150  # 15 s; longer speech is decoded in pieces
@@ -62,7 +61,9 @@ class PhoneTracker:
         """Decode block ``index`` (``BLOCK`` samples at 16 kHz, float; shorter only at the end)."""
         d = self._decoder
         sub = block[: len(block) // 160 * 160].reshape(-1, 160) if len(block) >= 160 else block.reshape(1, -1)
-        loudest = 10 * np.log10(np.max(np.mean(np.square(sub, dtype=np.float64), axis=1)) + 1e-10) if len(block) else -100.0
+        loudest = (
+            10 * np.log10(np.max(np.mean(np.square(sub, dtype=np.float64), axis=1)) + 1e-10) if len(block) else -100.0
+        )
         silent = loudest < self.silence_db
         if silent:
             if self._in_utt:
@@ -173,8 +174,29 @@ with the former decoder, all 42 phones with 128 Gaussians each and the phone tri
 against 49 %), at 3.5x the speed. On a larger set (62 utterances) the frames right were about
 the same: 43.9 % against 44.7 %."""
 
-VISEME_PHONES = ("SIL", "M", "P", "B", "F", "DH", "T", "K", "SH", "S", "N", "L", "R", "AH", "AA", "EH", "IH", "IY",
-                 "OW", "UW", "W")
+VISEME_PHONES = (
+    "SIL",
+    "M",
+    "P",
+    "B",
+    "F",
+    "DH",
+    "T",
+    "K",
+    "SH",
+    "S",
+    "N",
+    "L",
+    "R",
+    "AH",
+    "AA",
+    "EH",
+    "IH",
+    "IY",
+    "OW",
+    "UW",
+    "W",
+)
 """The phones the decoder tells apart: one to three per viseme class. Scoring a phone's Gaussians
 is most of the decoding time and every phone of the loop is scored on every frame, so the other
 21 of the model's 42 (``D`` sounds like ``T``, ``Z`` like ``S``, ``AE`` like ``AA``...) are left
@@ -184,8 +206,10 @@ DENSITIES = 64
 """Gaussians kept per phone and feature stream, of the model's 128: those that some senone of the
 phone weighs most. Fewer Gaussians to score make decoding about 1.6x faster."""
 
-_MODEL_PHONES = ("+NSN+ +SPN+ AA AE AH AO AW AY B CH D DH EH ER EY F G HH IH IY JH K L M N NG OW OY P R S SH "
-                 "SIL T TH UH UW V W Y Z ZH").split()
+_MODEL_PHONES = (
+    "+NSN+ +SPN+ AA AE AH AO AW AY B CH D DH EH ER EY F G HH IH IY JH K L M N NG OW OY P R S SH "
+    "SIL T TH UH UW V W Y Z ZH"
+).split()
 _MODEL_DIR: Path | None = None
 
 
@@ -218,7 +242,7 @@ def _write_reduced_model(source: Path, dest: Path, phones: tuple[str, ...], dens
     of each: their codebooks (PTM: one per phone, in the model's phone order), the mixture weights
     of their three senones each (CI senones are numbered 3 * phone index + state), and a text
     model definition listing them."""
-    keep = sorted((_MODEL_PHONES.index(p) for p in phones))
+    keep = sorted(_MODEL_PHONES.index(p) for p in phones)
     senones = np.array([3 * i + k for i in keep for k in range(3)])
     raw = (source / "sendump").read_bytes()
     n_feat, n_density, n_sen = 3, 128, 5126
@@ -230,18 +254,40 @@ def _write_reduced_model(source: Path, dest: Path, phones: tuple[str, ...], dens
     # Per phone and feature stream, the Gaussians some senone of the phone weighs most (smallest -log).
     chosen = np.sort(np.argsort(mixw.min(axis=3), axis=1, kind="stable")[:, :densities], axis=1)
     mixw = np.take_along_axis(mixw, chosen[..., None], axis=1)  # (feat, densities, phone, state)
-    write_bytes_atomic(dest / "sendump", raw[: start - 8] + struct.pack("<2i", densities, len(senones))
-                       + np.ascontiguousarray(mixw.reshape(n_feat, densities, -1)).tobytes())
+    write_bytes_atomic(
+        dest / "sendump",
+        raw[: start - 8]
+        + struct.pack("<2i", densities, len(senones))
+        + np.ascontiguousarray(mixw.reshape(n_feat, densities, -1)).tobytes(),
+    )
     per_phone = chosen.transpose(2, 0, 1)[..., None]  # (phone, feat, densities, 1)
     for name in ("means", "variances"):
         header, data = _read_gauden(source / name)
         write_bytes_atomic(dest / name, header + _pack_gauden(np.take_along_axis(data[keep], per_phone, axis=2)))
-    rows = [f"{_MODEL_PHONES[i]}\t-\t-\t-\t{'filler' if _MODEL_PHONES[i] == 'SIL' else 'n/a'}\t{i}\t"
-            f"{3 * j}\t{3 * j + 1}\t{3 * j + 2}\tN" for j, i in enumerate(keep)]
+    rows = [
+        f"{_MODEL_PHONES[i]}\t-\t-\t-\t{'filler' if _MODEL_PHONES[i] == 'SIL' else 'n/a'}\t{i}\t"
+        f"{3 * j}\t{3 * j + 1}\t{3 * j + 2}\tN"
+        for j, i in enumerate(keep)
+    ]
     n = len(keep)
-    write_text_atomic(dest / "mdef", "\n".join([
-        "0.3", f"{n} n_base", "0 n_tri", f"{4 * n} n_state_map", f"{3 * n} n_tied_state", f"{3 * n} n_tied_ci_state",
-        f"{len(_MODEL_PHONES)} n_tied_tmat", "#", "#base lft rt p attrib tmat state ids", *rows]) + "\n")
+    write_text_atomic(
+        dest / "mdef",
+        "\n".join(
+            [
+                "0.3",
+                f"{n} n_base",
+                "0 n_tri",
+                f"{4 * n} n_state_map",
+                f"{3 * n} n_tied_state",
+                f"{3 * n} n_tied_ci_state",
+                f"{len(_MODEL_PHONES)} n_tied_tmat",
+                "#",
+                "#base lft rt p attrib tmat state ids",
+                *rows,
+            ]
+        )
+        + "\n",
+    )
     for name in ("feat.params", "transition_matrices"):
         write_bytes_atomic(dest / name, (source / name).read_bytes())
     write_text_atomic(dest / "noisedict", "<s> SIL\n</s> SIL\n<sil> SIL\n")

@@ -10,16 +10,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterator
 from fractions import Fraction
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 import soundfile as sf
 from scipy.signal import resample_poly
 
 from convodrive import FPS
-from convodrive.errors import InputFileError
+from convodrive.plumbing.errors import InputFileError
 
 ANALYSIS_RATE = 16_000
 """Every generator sees audio at 16 kHz: enough for speech, and what pocketsphinx expects."""
@@ -37,7 +37,7 @@ class ChannelMap:
     other_channel: int | None = 1
 
     @classmethod
-    def parse(cls, text: str) -> "ChannelMap":
+    def parse(cls, text: str) -> ChannelMap:
         """Parse the CLI form ``SELF,OTHER`` (``OTHER`` may be ``-`` for a silent partner)."""
         parts = [p.strip() for p in text.split(",")]
         try:
@@ -167,7 +167,9 @@ class AudioSource:
         up, down = ratio.numerator, ratio.denominator
         ctx = down * math.ceil((10 * max(up, down) / up + 4) / down) if ratio != 1 else 0
         block = down * max(1, int(_BLOCK_SECONDS * self.info.sample_rate) // down)
-        cols = [self.channel_map.self_channel] + ([self.channel_map.other_channel] if self.channel_map.other_channel is not None else [])
+        cols = [self.channel_map.self_channel] + (
+            [self.channel_map.other_channel] if self.channel_map.other_channel is not None else []
+        )
         total = self.info.frames
         with sf.SoundFile(self.path) as fh:
             history = np.zeros((ctx, len(cols)), np.float32)
@@ -179,7 +181,9 @@ class AudioSource:
                 ahead = np.concatenate([lookahead, more])
                 window = np.concatenate([history, ahead[: current_len + ctx]])
                 if len(window) < 2 * ctx + current_len:
-                    window = np.concatenate([window, np.zeros((2 * ctx + current_len - len(window), len(cols)), np.float32)])
+                    window = np.concatenate(
+                        [window, np.zeros((2 * ctx + current_len - len(window), len(cols)), np.float32)]
+                    )
                 if ratio == 1:
                     out = window
                 else:

@@ -12,16 +12,16 @@ import dataclasses
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Sequence
 from fractions import Fraction
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import soundfile as sf
 from scipy.signal import resample_poly
 
-from convodrive.atomic import atomic_path
-from convodrive.errors import UserError
+from convodrive.plumbing.atomic import atomic_path
+from convodrive.plumbing.errors import UserError
 
 SELF, PARTNER = 0, 1
 
@@ -67,8 +67,15 @@ class DialogueInfo:
             "duration": round(self.duration, 3),
             "channels": {"0": "self", "1": "partner"},
             "turns": [
-                {"speaker": "self" if t.speaker == SELF else "partner", "channel": t.speaker, "start": round(t.start, 3),
-                 "end": round(t.end, 3), "text": t.text, "voice": t.voice, "rate": t.rate}
+                {
+                    "speaker": "self" if t.speaker == SELF else "partner",
+                    "channel": t.speaker,
+                    "start": round(t.start, 3),
+                    "end": round(t.end, 3),
+                    "text": t.text,
+                    "voice": t.voice,
+                    "rate": t.rate,
+                }
                 for t in self.turns
             ],
         }
@@ -83,7 +90,9 @@ def speak(text: str, voice: str = "en-us", rate: int = 165, pitch: int = 50, sam
         wav = Path(tmp) / "turn.wav"
         result = subprocess.run(
             [exe, "-v", voice, "-s", str(rate), "-p", str(pitch), "-w", str(wav), "--", text],
-            capture_output=True, text=True, timeout=60,
+            capture_output=True,
+            text=True,
+            timeout=60,
         )
         if result.returncode != 0 or not wav.exists():
             raise UserError(f"espeak-ng failed for voice {voice!r}: {result.stderr.strip() or result.returncode}")

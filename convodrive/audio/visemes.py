@@ -13,11 +13,46 @@ NUM_VISEMES = len(VISEMES)
 VISEME_INDEX = {name: i for i, name in enumerate(VISEMES)}
 
 PHONE_TO_VISEME: dict[str, str] = {
-    "AA": "aa", "AE": "aa", "AH": "aa", "AO": "oh", "AW": "aa", "AY": "aa", "B": "PP", "CH": "CH",
-    "D": "DD", "DH": "TH", "EH": "E", "ER": "RR", "EY": "E", "F": "FF", "G": "kk", "HH": "kk",
-    "IH": "ih", "IY": "ih", "JH": "CH", "K": "kk", "L": "nn", "M": "PP", "N": "nn", "NG": "kk",
-    "OW": "oh", "OY": "oh", "P": "PP", "R": "RR", "S": "SS", "SH": "CH", "T": "DD", "TH": "TH",
-    "UH": "ou", "UW": "ou", "V": "FF", "W": "ou", "Y": "ih", "Z": "SS", "ZH": "CH", "SIL": "sil",
+    "AA": "aa",
+    "AE": "aa",
+    "AH": "aa",
+    "AO": "oh",
+    "AW": "aa",
+    "AY": "aa",
+    "B": "PP",
+    "CH": "CH",
+    "D": "DD",
+    "DH": "TH",
+    "EH": "E",
+    "ER": "RR",
+    "EY": "E",
+    "F": "FF",
+    "G": "kk",
+    "HH": "kk",
+    "IH": "ih",
+    "IY": "ih",
+    "JH": "CH",
+    "K": "kk",
+    "L": "nn",
+    "M": "PP",
+    "N": "nn",
+    "NG": "kk",
+    "OW": "oh",
+    "OY": "oh",
+    "P": "PP",
+    "R": "RR",
+    "S": "SS",
+    "SH": "CH",
+    "T": "DD",
+    "TH": "TH",
+    "UH": "ou",
+    "UW": "ou",
+    "V": "FF",
+    "W": "ou",
+    "Y": "ih",
+    "Z": "SS",
+    "ZH": "CH",
+    "SIL": "sil",
 }
 
 
@@ -26,8 +61,14 @@ def phone_viseme(phone: str) -> int:
     return VISEME_INDEX[PHONE_TO_VISEME.get(phone.upper().rstrip("012"), "sil")]
 
 
-def spectral_visemes(f1_frac: np.ndarray, f2_frac: np.ndarray, low_frac: np.ndarray, hiss_frac: np.ndarray,
-                     voiced: np.ndarray, active: np.ndarray) -> np.ndarray:
+def spectral_visemes(
+    f1_frac: np.ndarray,
+    f2_frac: np.ndarray,
+    low_frac: np.ndarray,
+    hiss_frac: np.ndarray,
+    voiced: np.ndarray,
+    active: np.ndarray,
+) -> np.ndarray:
     """(T, 15) viseme weights from band energies: open (F1 band), wide (F2 band), round (low only), hiss.
 
     Open vowels put energy at 550-1100 Hz, front vowels at 1600-3000 Hz, rounded vowels keep it

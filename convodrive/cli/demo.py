@@ -10,26 +10,40 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from convodrive.cli.drive import print_result
 from convodrive.cli.progress import frame_progress
-from convodrive.errors import UserError
 from convodrive.pipeline import DEFAULT_GENERATOR, DriveRequest, drive
 from convodrive.plugins import BACKEND_GROUP, load_plugin
+from convodrive.plumbing.errors import UserError
 
 DEMO_BACKENDS = ("record", "render", "mujoco", "dynamixel")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("demo", help="run the bundled dialogue through every body (no setup needed)",
-                              description="Drive the bundled two-speaker dialogue into the recorder, the avatar preview, "
-                              "the MuJoCo humanoid and an emulated servo head, and print where the outputs are.")
-    p.add_argument("--out", type=Path, default=Path("convodrive-demo"), metavar="DIR", help="output folder (default: ./convodrive-demo)")
+    p = subparsers.add_parser(
+        "demo",
+        help="run the bundled dialogue through every body (no setup needed)",
+        description="Drive the bundled two-speaker dialogue into the recorder, the avatar preview, "
+        "the MuJoCo humanoid and an emulated servo head, and print where the outputs are.",
+    )
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("convodrive-demo"),
+        metavar="DIR",
+        help="output folder (default: ./convodrive-demo)",
+    )
     p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
-    p.add_argument("--only", default=",".join(DEMO_BACKENDS), metavar="NAME[,NAME]",
-                   help=f"backends to include (default: {','.join(DEMO_BACKENDS)})")
+    p.add_argument(
+        "--only",
+        default=",".join(DEMO_BACKENDS),
+        metavar="NAME[,NAME]",
+        help=f"backends to include (default: {','.join(DEMO_BACKENDS)})",
+    )
     p.set_defaults(func=run)
 
 

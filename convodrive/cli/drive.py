@@ -20,24 +20,59 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("audio", type=Path, metavar="AUDIO", help="WAV, FLAC or OGG file, any sample rate")
     p.add_argument("--generator", default=DEFAULT_GENERATOR, help=f"generator plugin (default: {DEFAULT_GENERATOR})")
-    p.add_argument("--backend", type=name_list, default=("record",), metavar="NAME[,NAME]",
-                   help="backend plugins, comma-separated (default: record)")
+    p.add_argument(
+        "--backend",
+        type=name_list,
+        default=("record",),
+        metavar="NAME[,NAME]",
+        help="backend plugins, comma-separated (default: record)",
+    )
     p.add_argument("--config", type=Path, metavar="FILE", help="robot profile or run preset (YAML)")
-    p.add_argument("--out", type=Path, default=Path("convodrive-out"), metavar="DIR", help="output folder (default: ./convodrive-out)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("convodrive-out"),
+        metavar="DIR",
+        help="output folder (default: ./convodrive-out)",
+    )
     p.add_argument("--seed", type=int, default=0, help="random seed: the same seed gives the same motion (default: 0)")
     p.add_argument("--samples", type=positive_int, default=1, metavar="K", help="generate K takes of the same audio")
     mode = p.add_mutually_exclusive_group()
-    mode.add_argument("--realtime", action="store_true",
-                      help="pace frames by the wall clock (the default when a backend is hardware or a live window)")
-    mode.add_argument("--offline", action="store_true",
-                      help="simulated clock, as fast as possible (the default when every backend writes files)")
-    p.add_argument("--channels", type=channel_map, metavar="SELF,OTHER",
-                   help="which file channels are self and partner (needed for files with more than 2 channels)")
+    mode.add_argument(
+        "--realtime",
+        action="store_true",
+        help="pace frames by the wall clock (the default when a backend is hardware or a live window)",
+    )
+    mode.add_argument(
+        "--offline",
+        action="store_true",
+        help="simulated clock, as fast as possible (the default when every backend writes files)",
+    )
+    p.add_argument(
+        "--channels",
+        type=channel_map,
+        metavar="SELF,OTHER",
+        help="which file channels are self and partner (needed for files with more than 2 channels)",
+    )
     p.add_argument("--motion", type=Path, metavar="FILE", help="motion file for the replay generator (.npz or .bvh)")
-    p.add_argument("-G", "--generator-option", type=key_value, action="append", default=[], metavar="KEY=VALUE",
-                   help="generator option, e.g. -G expressiveness=1.5")
-    p.add_argument("-B", "--backend-option", type=backend_key_value, action="append", default=[], metavar="BACKEND.KEY=VALUE",
-                   help="backend option, e.g. -B render.camera=face")
+    p.add_argument(
+        "-G",
+        "--generator-option",
+        type=key_value,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="generator option, e.g. -G expressiveness=1.5",
+    )
+    p.add_argument(
+        "-B",
+        "--backend-option",
+        type=backend_key_value,
+        action="append",
+        default=[],
+        metavar="BACKEND.KEY=VALUE",
+        help="backend option, e.g. -B render.camera=face",
+    )
     p.set_defaults(func=run)
 
 
@@ -61,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
         generator_options=gen_options,
         backend_options=backend_options,
     )
+
     def started(realtime: bool) -> None:
         if realtime:
             sys.stderr.write("convodrive: running in real time at 30 fps (Ctrl-C stops)\n")
@@ -73,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def print_result(result: DriveResult) -> None:
-    from convodrive.report import summarize
+    from convodrive.scheduler.report import summarize
 
     print(summarize(result.report))
     for path in result.outputs:

@@ -12,27 +12,40 @@ import signal
 import sys
 import threading
 
-from convodrive.errors import UserError
+from convodrive.plumbing.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("emulate", help="emulate a Dynamixel bus or a Pololu Maestro on a pty",
-                              description="Serve an emulated servo bus on a pseudo-terminal; its path is "
-                                          "printed on the first line. Runs until Ctrl-C.")
+    p = subparsers.add_parser(
+        "emulate",
+        help="emulate a Dynamixel bus or a Pololu Maestro on a pty",
+        description="Serve an emulated servo bus on a pseudo-terminal; its path is "
+        "printed on the first line. Runs until Ctrl-C.",
+    )
     kinds = p.add_subparsers(dest="device", metavar="DEVICE", required=True)
     dxl = kinds.add_parser("dynamixel", help="Dynamixel Protocol 2.0 servos")
     dxl.add_argument("--ids", default="1-7", help="servo ids, e.g. 1-7 or 1,2,5-6 (default 1-7)")
     dxl.add_argument("--model", default="xl330", help="servo model (xl330, xm430, xl320, ...)")
     dxl.add_argument("--baudrate", type=int, default=1_000_000, help="emulated wire speed (reply timing)")
     dxl.add_argument("--link", help="also make this path a symlink to the pty (stable across --fault port)")
-    dxl.add_argument("--fault", action="append", default=[], metavar="KIND[:ARG][@T][+D]",
-                     help="drop:RATE, corrupt:RATE, overload:ID, overheating:ID, input_voltage:ID, vanish:ID, port")
+    dxl.add_argument(
+        "--fault",
+        action="append",
+        default=[],
+        metavar="KIND[:ARG][@T][+D]",
+        help="drop:RATE, corrupt:RATE, overload:ID, overheating:ID, input_voltage:ID, vanish:ID, port",
+    )
     dxl.set_defaults(func=run_dynamixel)
     mae = kinds.add_parser("maestro", help="Pololu Maestro servo controller")
     mae.add_argument("--channels", type=int, default=12, choices=(6, 12, 18, 24))
     mae.add_argument("--link", help="also make this path a symlink to the pty")
-    mae.add_argument("--fault", action="append", default=[], metavar="KIND[:ARG][@T][+D]",
-                     help="drop:COUNT, port, or a Maestro error bit name such as serial_overrun")
+    mae.add_argument(
+        "--fault",
+        action="append",
+        default=[],
+        metavar="KIND[:ARG][@T][+D]",
+        help="drop:COUNT, port, or a Maestro error bit name such as serial_overrun",
+    )
     mae.set_defaults(func=run_maestro)
 
 

@@ -6,9 +6,9 @@ import argparse
 import json
 
 from convodrive.audio.source import AudioSource, ChannelMap
-from convodrive.behaviour_eval import behaviour_figures
-from convodrive.errors import UserError
+from convodrive.eval.behaviour import behaviour_figures
 from convodrive.motion.npz import load_clip
+from convodrive.plumbing.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -16,11 +16,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sub = p.add_subparsers(dest="eval_command", metavar="WHAT", parser_class=type(p))
     sub.required = True
     b = sub.add_parser(
-        "behaviour", help="lip sync, mouth closure, speaking vs listening head motion (JSON)",
-        description="Print behaviour figures of MOTION (a convodrive .npz) against the AUDIO it was made from, as JSON.")
+        "behaviour",
+        help="lip sync, mouth closure, speaking vs listening head motion (JSON)",
+        description="Print behaviour figures of MOTION (a convodrive .npz) against the AUDIO it was made from, as JSON.",
+    )
     b.add_argument("motion", help="motion clip (.npz written by convodrive)")
     b.add_argument("audio", help="the conversation audio (channel 0 self, 1 partner unless --channels)")
-    b.add_argument("--channels", default=None, help="SELF,OTHER channel numbers of the audio (e.g. 0,1; OTHER may be -)")
+    b.add_argument(
+        "--channels", default=None, help="SELF,OTHER channel numbers of the audio (e.g. 0,1; OTHER may be -)"
+    )
     b.set_defaults(func=run_behaviour)
 
 

@@ -9,10 +9,11 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-from typing import NoReturn, Sequence
+from collections.abc import Sequence
+from typing import NoReturn
 
 from convodrive import __version__
-from convodrive.errors import UserError
+from convodrive.plumbing.errors import UserError
 
 # Each module defines ``register(subparsers)``, which adds its subcommand and sets ``func``.
 COMMAND_MODULES: tuple[str, ...] = (

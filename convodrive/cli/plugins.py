@@ -8,7 +8,9 @@ from convodrive.plugins import BACKEND_GROUP, GENERATOR_GROUP, list_plugins
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("plugins", help="list generators and backends", description="List every installed generator and backend plugin.")
+    p = subparsers.add_parser(
+        "plugins", help="list generators and backends", description="List every installed generator and backend plugin."
+    )
     p.set_defaults(func=run)
 
 

@@ -13,19 +13,24 @@ from pathlib import Path
 import numpy as np
 
 from convodrive import FPS
-from convodrive.errors import InputFileError, UserError
 from convodrive.motion.clip import MotionClip
+from convodrive.plumbing.errors import InputFileError, UserError
 
 MOTION_SUFFIXES = (".npz", ".bvh")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("render", help="render saved motion (.npz, .bvh) as an avatar video",
-                              description="Render motion clips as a mesh-avatar mp4 (H.264, 30 fps) with a PNG contact "
-                              "sheet; several clips are shown side by side.")
+    p = subparsers.add_parser(
+        "render",
+        help="render saved motion (.npz, .bvh) as an avatar video",
+        description="Render motion clips as a mesh-avatar mp4 (H.264, 30 fps) with a PNG contact "
+        "sheet; several clips are shown side by side.",
+    )
     p.add_argument("motion", nargs="+", type=Path, metavar="MOTION", help="motion clip(s): convodrive .npz or BVH")
     p.add_argument("--audio", type=Path, metavar="WAV", help="audio to mux; sets the video's length")
-    p.add_argument("--camera", default="upper", choices=("full", "upper", "face"), help="camera preset (default: upper)")
+    p.add_argument(
+        "--camera", default="upper", choices=("full", "upper", "face"), help="camera preset (default: upper)"
+    )
     p.add_argument("--resolution", default="512x512", metavar="WxH", help="size of each take (default: 512x512)")
     p.add_argument("--out", type=Path, metavar="FILE", help="output .mp4 (default: next to the first clip)")
     p.add_argument("--antialias", action="store_true", help="4x multisampling (slower on CPU)")
@@ -62,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     from convodrive.backends.base import Session
     from convodrive.backends.render import RenderBackend
     from convodrive.cli.progress import frame_progress
-    from convodrive.targets import TargetFrame, TargetSpec
+    from convodrive.motion.targets import TargetFrame, TargetSpec
 
     clips = [load_motion(p) for p in args.motion]
     out = args.out if args.out is not None else args.motion[0].with_suffix(".mp4")
@@ -76,10 +81,24 @@ def run(args: argparse.Namespace) -> int:
         num_frames = max(1, int(round(duration * FPS)))
     else:
         num_frames = max(int(np.ceil(c.duration * FPS - 1e-6)) for c in clips)
-    backend = RenderBackend({"camera": args.camera, "resolution": args.resolution, "filename": out.name,
-                             "contact_sheet": f"{out.stem}_contact.png", "antialias": args.antialias})
-    session = Session(out_dir=out.parent if str(out.parent) else Path("."), audio_path=args.audio, duration=duration,
-                      num_frames=num_frames, fps=FPS, offline=True, num_samples=len(clips))
+    backend = RenderBackend(
+        {
+            "camera": args.camera,
+            "resolution": args.resolution,
+            "filename": out.name,
+            "contact_sheet": f"{out.stem}_contact.png",
+            "antialias": args.antialias,
+        }
+    )
+    session = Session(
+        out_dir=out.parent if str(out.parent) else Path("."),
+        audio_path=args.audio,
+        duration=duration,
+        num_frames=num_frames,
+        fps=FPS,
+        offline=True,
+        num_samples=len(clips),
+    )
     indices = [frame_indices(c, num_frames) for c in clips]
     backend.open(TargetSpec.empty(), session)
     try:
@@ -99,6 +118,8 @@ def run(args: argparse.Namespace) -> int:
     report = backend.report()
     for path in backend.outputs():
         print(path)
-    print(f"{report['frames']} frames, {report['resolution'][0]}x{report['resolution'][1]}, "
-          f"{report['render_fps']} fps rendering ({report['gl_platform']})")
+    print(
+        f"{report['frames']} frames, {report['resolution'][0]}x{report['resolution'][1]}, "
+        f"{report['render_fps']} fps rendering ({report['gl_platform']})"
+    )
     return 0

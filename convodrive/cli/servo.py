@@ -14,29 +14,34 @@ import re
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import yaml
 
-from convodrive.atomic import write_text_atomic
-from convodrive.errors import InputFileError, UserError
+from convodrive.plumbing.atomic import write_text_atomic
+from convodrive.plumbing.errors import InputFileError, UserError
 
 STANDARD_BAUDRATES = (57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 9_600)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("servo", help="Dynamixel tools: scan, calibrate, monitor",
-                              description="Find, calibrate and watch the Dynamixel servos of a head.")
+    p = subparsers.add_parser(
+        "servo",
+        help="Dynamixel tools: scan, calibrate, monitor",
+        description="Find, calibrate and watch the Dynamixel servos of a head.",
+    )
     tools = p.add_subparsers(dest="tool", metavar="TOOL", required=True)
     scan = tools.add_parser("scan", help="list servo ids, models and firmware on a port")
     scan.add_argument("--port", required=True, help="serial port, e.g. /dev/ttyUSB0")
-    scan.add_argument("--baudrate", type=int, action="append",
-                      help="baud rate to try (repeatable; default 1000000)")
+    scan.add_argument("--baudrate", type=int, action="append", help="baud rate to try (repeatable; default 1000000)")
     scan.add_argument("--all-baudrates", action="store_true", help="try every standard baud rate")
     scan.set_defaults(func=run_scan)
-    for name, fn, text in (("calibrate", run_calibrate, "record each joint's range into the profile"),
-                           ("monitor", run_monitor, "live health table")):
+    for name, fn, text in (
+        ("calibrate", run_calibrate, "record each joint's range into the profile"),
+        ("monitor", run_monitor, "live health table"),
+    ):
         t = tools.add_parser(name, help=text)
         t.add_argument("--config", default="servo_head", help="robot profile (name or YAML path; default servo_head)")
         t.add_argument("--port", help="override backends.dynamixel.port")
@@ -92,10 +97,17 @@ def _bus(options: dict[str, Any], port: str | None):  # type: ignore[no-untyped-
     from convodrive.backends.servo.dynamixel_bus import DynamixelBus, Motor
 
     default = dt.model(str(options.get("model", "xl330")))
-    motors = [Motor(name, int(j["id"]), dt.model(j["model"]) if j.get("model") else default)
-              for name, j in options["joints"].items()]
-    bus = DynamixelBus(port or str(options.get("port", "")), motors, baudrate=int(options.get("baudrate", 1_000_000)),
-                       retries=int(options.get("retries", 2)), latency_ms=float(options.get("latency_ms", 16.0)))
+    motors = [
+        Motor(name, int(j["id"]), dt.model(j["model"]) if j.get("model") else default)
+        for name, j in options["joints"].items()
+    ]
+    bus = DynamixelBus(
+        port or str(options.get("port", "")),
+        motors,
+        baudrate=int(options.get("baudrate", 1_000_000)),
+        retries=int(options.get("retries", 2)),
+        latency_ms=float(options.get("latency_ms", 16.0)),
+    )
     bus.connect()
     if not any(bus.ping(m.id) for m in motors):
         bus.disconnect()
@@ -130,8 +142,14 @@ def record_range(bus: Any, name: str, done: Callable[[], None], period: float = 
     return (min(seen), max(seen)) if seen else None
 
 
-def calibrate(config: str, port: str | None = None, joints: list[str] | None = None, output: str | None = None,
-              done: Callable[[str], None] | None = None, say: Callable[[str], None] = print) -> dict[str, tuple[int, int]]:
+def calibrate(
+    config: str,
+    port: str | None = None,
+    joints: list[str] | None = None,
+    output: str | None = None,
+    done: Callable[[str], None] | None = None,
+    say: Callable[[str], None] = print,
+) -> dict[str, tuple[int, int]]:
     """Record each joint's range with torque off and write min/max ticks into the profile."""
     path, _, options = _profile(config)
     names = joints or list(options["joints"])
@@ -238,11 +256,17 @@ def health_table(bus: Any) -> Any:
         regs = data.get(name, {})
         d = h.as_dict()
         style = {"ok": "green", "fault": "red", "lost": "yellow"}[d["status"]]
-        table.add_row(name, str(h.id), f"[{style}]{d['status']}[/]", str(regs.get("Present_Position", "-")),
-                      str(regs.get("Present_Temperature", "-")),
-                      f"{regs['Present_Input_Voltage'] / 10:.1f}" if regs else "-",
-                      ",".join(d["faults"]) or "-", str(d["timeouts"] + d["corrupt"]),
-                      "-" if d["last_seen_s"] is None else f"{d['last_seen_s']:.2f}")
+        table.add_row(
+            name,
+            str(h.id),
+            f"[{style}]{d['status']}[/]",
+            str(regs.get("Present_Position", "-")),
+            str(regs.get("Present_Temperature", "-")),
+            f"{regs['Present_Input_Voltage'] / 10:.1f}" if regs else "-",
+            ",".join(d["faults"]) or "-",
+            str(d["timeouts"] + d["corrupt"]),
+            "-" if d["last_seen_s"] is None else f"{d['last_seen_s']:.2f}",
+        )
     return table
 
 

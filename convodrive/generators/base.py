@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import abc
 import itertools
-from typing import Any, ClassVar, Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
+from typing import Any, ClassVar
 
 from convodrive.audio.source import AudioChunk, DyadicAudio
 from convodrive.motion.clip import MotionClip, MotionFrame

@@ -7,18 +7,19 @@ the audio outlasts the clip the last frame is held. Voice activity and state com
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any
 
 import numpy as np
 
 from convodrive import FPS
 from convodrive.audio.source import ANALYSIS_RATE, AudioChunk, motion_frames_for
-from convodrive.errors import InputFileError, UserError
 from convodrive.generators.base import Generator
 from convodrive.motion import rotations
 from convodrive.motion.channels import ConversationState
 from convodrive.motion.clip import MotionClip, MotionFrame
+from convodrive.plumbing.errors import InputFileError, UserError
 
 
 def load_motion(path: str | Path) -> MotionClip:

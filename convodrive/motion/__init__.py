@@ -5,6 +5,15 @@ from convodrive.motion.clip import MotionClip, MotionFrame
 from convodrive.motion.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, REST_OFFSETS
 
 __all__ = [
-    "ARKIT_NAMES", "BLENDSHAPE_INDEX", "NUM_BLENDSHAPES", "ConversationState", "MotionClip",
-    "MotionFrame", "JOINT_INDEX", "JOINT_NAMES", "NUM_JOINTS", "PARENTS", "REST_OFFSETS",
+    "ARKIT_NAMES",
+    "BLENDSHAPE_INDEX",
+    "NUM_BLENDSHAPES",
+    "ConversationState",
+    "MotionClip",
+    "MotionFrame",
+    "JOINT_INDEX",
+    "JOINT_NAMES",
+    "NUM_JOINTS",
+    "PARENTS",
+    "REST_OFFSETS",
 ]

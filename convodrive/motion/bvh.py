@@ -19,16 +19,24 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
-from convodrive.atomic import atomic_path
-from convodrive.errors import InputFileError
 from convodrive.motion import rotations
 from convodrive.motion.clip import MotionClip
-from convodrive.motion.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, REST_OFFSETS, REST_POSITIONS, children
+from convodrive.motion.skeleton import (
+    JOINT_INDEX,
+    JOINT_NAMES,
+    NUM_JOINTS,
+    PARENTS,
+    REST_OFFSETS,
+    REST_POSITIONS,
+    children,
+)
+from convodrive.plumbing.atomic import atomic_path
+from convodrive.plumbing.errors import InputFileError
 
 UNITS_PER_METRE = 100.0
 """Our BVH files are in centimetres."""
@@ -121,20 +129,44 @@ def write_bvh(clip: MotionClip, path: str | os.PathLike[str]) -> Path:
 
 _SIDES = {"left": "left", "l": "left", "right": "right", "r": "right"}
 _SIDED_ALIASES = {
-    "shoulder": "collar", "clavicle": "collar", "collar": "collar",
-    "arm": "shoulder", "upperarm": "shoulder",
-    "forearm": "elbow", "lowerarm": "elbow", "elbow": "elbow",
-    "hand": "wrist", "wrist": "wrist",
-    "upleg": "hip", "upperleg": "hip", "thigh": "hip", "hip": "hip",
-    "leg": "knee", "lowerleg": "knee", "shin": "knee", "knee": "knee", "calf": "knee",
-    "foot": "ankle", "ankle": "ankle",
-    "toebase": "foot", "toe": "foot", "toes": "foot",
+    "shoulder": "collar",
+    "clavicle": "collar",
+    "collar": "collar",
+    "arm": "shoulder",
+    "upperarm": "shoulder",
+    "forearm": "elbow",
+    "lowerarm": "elbow",
+    "elbow": "elbow",
+    "hand": "wrist",
+    "wrist": "wrist",
+    "upleg": "hip",
+    "upperleg": "hip",
+    "thigh": "hip",
+    "hip": "hip",
+    "leg": "knee",
+    "lowerleg": "knee",
+    "shin": "knee",
+    "knee": "knee",
+    "calf": "knee",
+    "foot": "ankle",
+    "ankle": "ankle",
+    "toebase": "foot",
+    "toe": "foot",
+    "toes": "foot",
     "eye": "eye_smplhf",
 }
 _CENTRE_ALIASES = {
-    "hips": "pelvis", "pelvis": "pelvis", "root": "pelvis",
-    "spine": "spine1", "spine1": "spine2", "spine2": "spine3", "chest": "spine2", "upperchest": "spine3",
-    "neck": "neck", "head": "head", "jaw": "jaw",
+    "hips": "pelvis",
+    "pelvis": "pelvis",
+    "root": "pelvis",
+    "spine": "spine1",
+    "spine1": "spine2",
+    "spine2": "spine3",
+    "chest": "spine2",
+    "upperchest": "spine3",
+    "neck": "neck",
+    "head": "head",
+    "jaw": "jaw",
 }
 _FINGERS = ("thumb", "index", "middle", "ring", "pinky")
 
@@ -168,7 +200,7 @@ def canonical_joint_name(name: str) -> str | None:
 
 
 class _Joint:
-    def __init__(self, name: str, parent: "_Joint | None", line: int) -> None:
+    def __init__(self, name: str, parent: _Joint | None, line: int) -> None:
         self.name, self.parent, self.line = name, parent, line
         self.offset = np.zeros(3)
         self.channels: list[str] = []
@@ -190,7 +222,8 @@ def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[list[_Joint], int]:
         i += 1
     if i >= len(lines) or lines[i].split()[0].upper() != "HIERARCHY":
         raise InputFileError(path, f"line {i + 1}: not a BVH file (expected 'HIERARCHY')")
-    for i in range(i + 1, len(lines)):
+    first = i + 1
+    for i in range(first, len(lines)):
         words = lines[i].split()
         if not words:
             continue
@@ -263,7 +296,7 @@ def _parse_motion(path: Path, lines: list[str], start: int, n_channels: int) -> 
         line = lines[i].strip() if i < len(lines) else ""
         if not line.lower().startswith(label):
             raise InputFileError(path, f"line {i + 1}: expected '{label.capitalize()}'")
-        header[label] = line[len(label):].strip()
+        header[label] = line[len(label) :].strip()
         i += 1
     try:
         num_frames = int(header["frames:"])
@@ -282,7 +315,9 @@ def _parse_motion(path: Path, lines: list[str], start: int, n_channels: int) -> 
         except ValueError:
             raise InputFileError(path, f"line {lineno}: frame {k} holds a value that is not a number") from None
         if len(values) != n_channels:
-            raise InputFileError(path, f"line {lineno}: frame {k} has {len(values)} values, the hierarchy declares {n_channels}")
+            raise InputFileError(
+                path, f"line {lineno}: frame {k} has {len(values)} values, the hierarchy declares {n_channels}"
+            )
         if not np.all(np.isfinite(values)):
             raise InputFileError(path, f"line {lineno}: frame {k} holds NaN or infinite values")
         data[k] = values
@@ -336,11 +371,13 @@ def read_bvh(path: str | os.PathLike[str]) -> MotionClip:
             angles = np.radians(data[:, [cols[c] for c in rot]])
             pose[:, JOINT_INDEX[target]] = rotations.euler_to_axis_angle(angles, "".join(c[0] for c in rot))
         elif rot:
-            raise InputFileError(path, f"line {j.line}: joint {j.name} has {len(rot)} rotation channels (BVH needs 3 or none)")
+            raise InputFileError(
+                path, f"line {j.line}: joint {j.name} has {len(rot)} rotation channels (BVH needs 3 or none)"
+            )
     root = joints[0]
     if all(c in root.channels for c in _POS_CHANNELS):
-        cols = [root.first_channel + root.channels.index(c) for c in _POS_CHANNELS]
-        translation = data[:, cols] * scale - REST_POSITIONS[0]
+        position_cols = [root.first_channel + root.channels.index(c) for c in _POS_CHANNELS]
+        translation = data[:, position_cols] * scale - REST_POSITIONS[0]
     if not mapped:
         raise InputFileError(path, "no joint matches the canonical skeleton by name (e.g. pelvis/Hips, head/Head)")
     return MotionClip(

@@ -8,7 +8,8 @@ which is how generators produce motion offline and how it is stored.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Iterable, Sequence
+from collections.abc import Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -34,7 +35,7 @@ class MotionFrame:
     state: ConversationState = ConversationState.SILENCE
 
     @classmethod
-    def neutral(cls, time: float = 0.0) -> "MotionFrame":
+    def neutral(cls, time: float = 0.0) -> MotionFrame:
         return cls(
             time=time,
             pose=np.zeros((NUM_JOINTS, 3), np.float32),
@@ -91,11 +92,19 @@ class MotionClip:
         return (self.frame(i) for i in range(self.num_frames))
 
     @classmethod
-    def from_frames(cls, frames: Sequence[MotionFrame], fps: float = FPS, metadata: dict[str, Any] | None = None) -> "MotionClip":
+    def from_frames(
+        cls, frames: Sequence[MotionFrame], fps: float = FPS, metadata: dict[str, Any] | None = None
+    ) -> MotionClip:
         return cls(
-            pose=np.stack([f.pose for f in frames]).astype(np.float32) if frames else np.zeros((0, NUM_JOINTS, 3), np.float32),
-            translation=np.stack([f.translation for f in frames]).astype(np.float32) if frames else np.zeros((0, 3), np.float32),
-            face=np.stack([f.face for f in frames]).astype(np.float32) if frames else np.zeros((0, NUM_BLENDSHAPES), np.float32),
+            pose=np.stack([f.pose for f in frames]).astype(np.float32)
+            if frames
+            else np.zeros((0, NUM_JOINTS, 3), np.float32),
+            translation=np.stack([f.translation for f in frames]).astype(np.float32)
+            if frames
+            else np.zeros((0, 3), np.float32),
+            face=np.stack([f.face for f in frames]).astype(np.float32)
+            if frames
+            else np.zeros((0, NUM_BLENDSHAPES), np.float32),
             vad=np.stack([f.vad for f in frames]).astype(np.float32) if frames else np.zeros((0, 2), np.float32),
             state=np.array([int(f.state) for f in frames], np.int8),
             fps=fps,
@@ -103,7 +112,7 @@ class MotionClip:
         )
 
     @classmethod
-    def neutral(cls, num_frames: int, fps: float = FPS) -> "MotionClip":
+    def neutral(cls, num_frames: int, fps: float = FPS) -> MotionClip:
         return cls(
             pose=np.zeros((num_frames, NUM_JOINTS, 3), np.float32),
             translation=np.zeros((num_frames, 3), np.float32),

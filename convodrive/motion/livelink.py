@@ -19,20 +19,26 @@ from pathlib import Path
 
 import numpy as np
 
-from convodrive.atomic import atomic_path
 from convodrive.motion import rotations
 from convodrive.motion.channels import ARKIT_NAMES, BLENDSHAPE_INDEX
 from convodrive.motion.clip import MotionClip
 from convodrive.motion.skeleton import JOINT_INDEX, global_rotation
+from convodrive.plumbing.atomic import atomic_path
 
 BLENDSHAPE_COUNT = 61
 _SWAPS = {"jawLeft": "jawRight", "jawRight": "jawLeft", "mouthLeft": "mouthRight", "mouthRight": "mouthLeft"}
 LIVELINK_BLENDSHAPES: tuple[str, ...] = tuple(_SWAPS.get(n, n) for n in ARKIT_NAMES)
 """The 52 ARKit names in the app's column order (still camelCase)."""
 ROTATION_COLUMNS: tuple[str, ...] = (
-    "HeadYaw", "HeadPitch", "HeadRoll",
-    "LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll",
-    "RightEyeYaw", "RightEyePitch", "RightEyeRoll",
+    "HeadYaw",
+    "HeadPitch",
+    "HeadRoll",
+    "LeftEyeYaw",
+    "LeftEyePitch",
+    "LeftEyeRoll",
+    "RightEyeYaw",
+    "RightEyePitch",
+    "RightEyeRoll",
 )
 HEADER: tuple[str, ...] = (
     ("Timecode", "BlendShapeCount") + tuple(n[0].upper() + n[1:] for n in LIVELINK_BLENDSHAPES) + ROTATION_COLUMNS
@@ -55,7 +61,11 @@ def head_eye_rotations(pose: np.ndarray) -> np.ndarray:
     from local axis-angle poses (T, 55, 3)."""
     local = rotations.axis_angle_to_matrix(pose)
     mats = np.stack(
-        [global_rotation(local, JOINT_INDEX["head"]), local[:, JOINT_INDEX["left_eye_smplhf"]], local[:, JOINT_INDEX["right_eye_smplhf"]]],
+        [
+            global_rotation(local, JOINT_INDEX["head"]),
+            local[:, JOINT_INDEX["left_eye_smplhf"]],
+            local[:, JOINT_INDEX["right_eye_smplhf"]],
+        ],
         axis=1,
     )
     return rotations.matrix_to_euler(mats, _YAW_PITCH_ROLL).reshape(len(pose), 9)

@@ -15,11 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from convodrive.atomic import atomic_path
-from convodrive.errors import InputFileError
 from convodrive.motion.channels import ARKIT_NAMES
 from convodrive.motion.clip import MotionClip
 from convodrive.motion.skeleton import JOINT_NAMES
+from convodrive.plumbing.atomic import atomic_path
+from convodrive.plumbing.errors import InputFileError
 
 FORMAT_VERSION = 1
 _FORMAT_TAG = "convodrive.motion"
@@ -60,8 +60,14 @@ def load_clip(path: str | os.PathLike[str]) -> MotionClip:
         raise InputFileError(path, "not a convodrive motion .npz (no 'format' tag)")
     version = int(arrays["format_version"]) if "format_version" in arrays else -1
     if version != FORMAT_VERSION:
-        raise InputFileError(path, f"motion format version {version} is not supported (this convodrive reads {FORMAT_VERSION})")
-    missing = [k for k in ("pose", "translation", "face", "vad", "state", "fps", "joint_names", "blendshape_names") if k not in arrays]
+        raise InputFileError(
+            path, f"motion format version {version} is not supported (this convodrive reads {FORMAT_VERSION})"
+        )
+    missing = [
+        k
+        for k in ("pose", "translation", "face", "vad", "state", "fps", "joint_names", "blendshape_names")
+        if k not in arrays
+    ]
     if missing:
         raise InputFileError(path, f"missing arrays: {', '.join(missing)}")
     if tuple(str(n) for n in arrays["joint_names"]) != JOINT_NAMES:

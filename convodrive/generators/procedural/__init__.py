@@ -8,7 +8,8 @@ randomness indexed by absolute frame and seed), so streaming equals offline gene
 
 from __future__ import annotations
 
-from typing import Any, Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -29,8 +30,10 @@ __all__ = ["ProceduralGenerator", "ProceduralOptions"]
 
 class ProceduralGenerator(Generator):
     name = "procedural"
-    description = ("Rule-based talking and listening motion from both voices (visemes, blinks, gaze, nods, "
-                   "beat gestures); no weights needed")
+    description = (
+        "Rule-based talking and listening motion from both voices (visemes, blinks, gaze, nods, "
+        "beat gestures); no weights needed"
+    )
 
     def __init__(self, options: dict[str, Any] | None = None) -> None:
         super().__init__(options)
@@ -69,10 +72,21 @@ class ProceduralGenerator(Generator):
         for i in range(num_samples):
             s = take_seed(seed, i)
             arrays = _Synth(self.settings, s)(features)
-            clips.append(MotionClip(
-                pose=arrays["pose"], translation=arrays["translation"], face=arrays["face"], vad=arrays["vad"],
-                state=arrays["state"], metadata={"generator": self.name, "seed": s, "take": i,
-                                                 "phones": bool(self.settings.phones and pocketsphinx_available())}))
+            clips.append(
+                MotionClip(
+                    pose=arrays["pose"],
+                    translation=arrays["translation"],
+                    face=arrays["face"],
+                    vad=arrays["vad"],
+                    state=arrays["state"],
+                    metadata={
+                        "generator": self.name,
+                        "seed": s,
+                        "take": i,
+                        "phones": bool(self.settings.phones and pocketsphinx_available()),
+                    },
+                )
+            )
         return clips
 
     def analyse(self, audio: DyadicAudio) -> FrameBatch:
@@ -106,8 +120,11 @@ class _Synth:
         pose[:, J["right_eye_smplhf"]] = eye_rot
         vad = np.stack([s["vad"], o["vad"]], axis=1)
         state = (vad[:, 0] > 0).astype(np.int8) * int(ConversationState.SPEAKING)
-        state = np.where((vad[:, 1] > 0) & (vad[:, 0] > 0), int(ConversationState.OVERLAP),
-                         np.where(vad[:, 1] > 0, int(ConversationState.LISTENING), state)).astype(np.int8)
+        state = np.where(
+            (vad[:, 1] > 0) & (vad[:, 0] > 0),
+            int(ConversationState.OVERLAP),
+            np.where(vad[:, 1] > 0, int(ConversationState.LISTENING), state),
+        ).astype(np.int8)
         n = len(batch)
         return {
             "first": batch.first,
@@ -123,6 +140,10 @@ def _frames(arrays: dict[str, np.ndarray]) -> Iterator[MotionFrame]:
     first = arrays["first"]
     for j in range(len(arrays["pose"])):
         yield MotionFrame(
-            time=(first + j) / 30.0, pose=arrays["pose"][j], translation=arrays["translation"][j],
-            face=arrays["face"][j], vad=arrays["vad"][j], state=ConversationState(int(arrays["state"][j])),
+            time=(first + j) / 30.0,
+            pose=arrays["pose"][j],
+            translation=arrays["translation"][j],
+            face=arrays["face"][j],
+            vad=arrays["vad"][j],
+            state=ConversationState(int(arrays["state"][j])),
         )

@@ -127,8 +127,9 @@ class BodySynth:
             pose[:, J["right_elbow"], 1] -= flick[:, 1]
         return pose
 
-    def _events(self, first: int, u: np.ndarray, s: dict[str, np.ndarray], o: dict[str, np.ndarray]
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _events(
+        self, first: int, u: np.ndarray, s: dict[str, np.ndarray], o: dict[str, np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Backchannel nod impulses, arm key-pose targets (n, 2P) and beat impulses (n, 2)."""
         n = len(u)
         nods = np.zeros(n)

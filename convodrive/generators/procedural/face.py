@@ -15,12 +15,12 @@ import numpy as np
 
 from convodrive.audio.visemes import NUM_VISEMES, VISEME_INDEX
 from convodrive.generators.procedural.options import ProceduralOptions
-from convodrive.generators.procedural.signals import FrameNoise, Filter, bump, one_pole, smoother
+from convodrive.generators.procedural.signals import Filter, FrameNoise, bump, one_pole, smoother
 from convodrive.motion.channels import BLENDSHAPE_INDEX as B
-from convodrive.motion.channels import NUM_BLENDSHAPES
 from convodrive.motion.channels import EYE_LOOK_PITCH_RAD as EYE_PITCH_MAX
 from convodrive.motion.channels import EYE_LOOK_YAW_RAD as EYE_YAW_MAX
 from convodrive.motion.channels import JAW_OPEN_RAD as JAW_MAX_RAD
+from convodrive.motion.channels import NUM_BLENDSHAPES
 
 # Viseme -> (jaw factor, {ARKit channel: weight}); L/R pairs are written once without the side.
 _VISEME_SHAPES: dict[str, tuple[float, dict[str, float]]] = {
@@ -49,7 +49,7 @@ def _tables() -> tuple[np.ndarray, np.ndarray]:
         v = VISEME_INDEX[name]
         jaw[v] = factor
         for ch, w in channels.items():
-            for full in ((ch,) if ch in B else (ch + "Left", ch + "Right")):
+            for full in (ch,) if ch in B else (ch + "Left", ch + "Right"):
                 shapes[v, B[full]] = w
     return jaw, shapes
 
@@ -87,8 +87,9 @@ class FaceSynth:
         self._avert_until = -1
         self._next_saccade = 0
 
-    def step(self, first: int, s: dict[str, np.ndarray], o: dict[str, np.ndarray], visemes: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def step(
+        self, first: int, s: dict[str, np.ndarray], o: dict[str, np.ndarray], visemes: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Face channels (n, 52), jaw angle (n,), and gaze (n, 2) yaw/pitch in radians."""
         n = len(visemes)
         face = np.zeros((n, NUM_BLENDSHAPES))
@@ -99,7 +100,7 @@ class FaceSynth:
         drive = self.jaw(drive)
         jaw_factor = 0.5 + 0.5 * (vis @ VISEME_JAW)
         jaw_open = np.clip(0.8 * drive * jaw_factor, 0.0, 1.0)
-        face += (np.clip(drive * 1.3, 0.0, 1.0)[:, None] * (vis @ VISEME_SHAPES))
+        face += np.clip(drive * 1.3, 0.0, 1.0)[:, None] * (vis @ VISEME_SHAPES)
         face[:, B["jawOpen"]] = jaw_open
 
         r = self.rand.take(first, n)
@@ -118,8 +119,14 @@ class FaceSynth:
 
         # Smiles on laughter-like bursts: one's own, and half as much at the partner's.
         smile = np.clip(self.smile(np.maximum(s["laugh"], 0.5 * o["laugh"])) * min(1.0, 0.5 + 0.5 * e), 0.0, 1.0)
-        for ch, w in (("mouthSmileLeft", 0.7), ("mouthSmileRight", 0.7), ("cheekSquintLeft", 0.4),
-                      ("cheekSquintRight", 0.4), ("eyeSquintLeft", 0.3), ("eyeSquintRight", 0.3)):
+        for ch, w in (
+            ("mouthSmileLeft", 0.7),
+            ("mouthSmileRight", 0.7),
+            ("cheekSquintLeft", 0.4),
+            ("cheekSquintRight", 0.4),
+            ("eyeSquintLeft", 0.3),
+            ("eyeSquintRight", 0.3),
+        ):
             face[:, B[ch]] = np.clip(face[:, B[ch]] + w * smile, 0.0, 1.0)
 
         eyes = self.eyes(gaze)
@@ -132,12 +139,14 @@ class FaceSynth:
         face[:, B["eyeLookOutRight"]] = right
         face[:, B["eyeLookUpLeft"]] = face[:, B["eyeLookUpRight"]] = np.clip(-pitch / EYE_PITCH_MAX, 0.0, 1.0)
         face[:, B["eyeLookDownLeft"]] = face[:, B["eyeLookDownRight"]] = np.clip(pitch / EYE_PITCH_MAX, 0.0, 1.0)
-        eyes = np.stack([
-            np.clip(yaw, -EYE_YAW_MAX, EYE_YAW_MAX), np.clip(pitch, -EYE_PITCH_MAX, EYE_PITCH_MAX)], axis=1)
+        eyes = np.stack(
+            [np.clip(yaw, -EYE_YAW_MAX, EYE_YAW_MAX), np.clip(pitch, -EYE_PITCH_MAX, EYE_PITCH_MAX)], axis=1
+        )
         return np.clip(face, 0.0, 1.0), jaw_open * JAW_MAX_RAD, eyes
 
-    def _events(self, first: int, r: np.ndarray, vad_self: np.ndarray, vad_other: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
+    def _events(
+        self, first: int, r: np.ndarray, vad_self: np.ndarray, vad_other: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Blink impulses and the gaze target, frame by frame (light scalar work only)."""
         n = len(vad_self)
         blinks = np.zeros(n)

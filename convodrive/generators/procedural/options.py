@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from convodrive.errors import UserError
+from convodrive.plumbing.errors import UserError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -23,7 +23,7 @@ class ProceduralOptions:
     vad_off_db: float = -48.0
 
     @classmethod
-    def from_dict(cls, options: dict[str, Any] | None) -> "ProceduralOptions":
+    def from_dict(cls, options: dict[str, Any] | None) -> ProceduralOptions:
         options = dict(options or {})
         fields = {f.name: f for f in dataclasses.fields(cls)}
         unknown = sorted(set(options) - set(fields))
@@ -44,7 +44,9 @@ class ProceduralOptions:
         opts = cls(**values)
         for name in ("expressiveness", "variability"):
             if not 0.0 <= getattr(opts, name) <= 3.0:
-                raise UserError(f"generator procedural: option {name!r} must be between 0 and 3, got {getattr(opts, name)}")
+                raise UserError(
+                    f"generator procedural: option {name!r} must be between 0 and 3, got {getattr(opts, name)}"
+                )
         if opts.vad_off_db > opts.vad_on_db:
             raise UserError("generator procedural: vad_off_db must not exceed vad_on_db")
         return opts

@@ -21,16 +21,36 @@ FINGERS = ("index", "middle", "ring", "pinky", "thumb")
 # Left arm: shoulder (forward swing X, lower Z, twist Y), elbow bend (about Y), wrist (X twist: -
 # turns the palm up when the forearm points forward; Z: flexion), finger curl per finger (deg).
 _LEFT: dict[str, dict] = {
-    "rest": dict(shoulder=(-12, -74, 0), elbow=(0, 0, -62), wrist=(10, -5, 0),
-                 curl=dict(index=15, middle=20, ring=24, pinky=28, thumb=8)),
-    "beat": dict(shoulder=(-24, -68, 0), elbow=(0, 0, -84), wrist=(25, -12, 0),
-                 curl=dict(index=28, middle=34, ring=38, pinky=42, thumb=15)),
-    "open_palms": dict(shoulder=(-26, -60, -8), elbow=(0, 0, -78), wrist=(-70, 8, 0),
-                       curl=dict(index=4, middle=5, ring=6, pinky=8, thumb=0)),
-    "precision_grip": dict(shoulder=(-28, -66, 0), elbow=(0, 0, -96), wrist=(5, -10, 0),
-                           curl=dict(index=42, middle=55, ring=62, pinky=66, thumb=32)),
-    "pointing": dict(shoulder=(-42, -58, 0), elbow=(0, 0, -48), wrist=(15, 0, 0),
-                     curl=dict(index=0, middle=78, ring=82, pinky=84, thumb=35)),
+    "rest": dict(
+        shoulder=(-12, -74, 0),
+        elbow=(0, 0, -62),
+        wrist=(10, -5, 0),
+        curl=dict(index=15, middle=20, ring=24, pinky=28, thumb=8),
+    ),
+    "beat": dict(
+        shoulder=(-24, -68, 0),
+        elbow=(0, 0, -84),
+        wrist=(25, -12, 0),
+        curl=dict(index=28, middle=34, ring=38, pinky=42, thumb=15),
+    ),
+    "open_palms": dict(
+        shoulder=(-26, -60, -8),
+        elbow=(0, 0, -78),
+        wrist=(-70, 8, 0),
+        curl=dict(index=4, middle=5, ring=6, pinky=8, thumb=0),
+    ),
+    "precision_grip": dict(
+        shoulder=(-28, -66, 0),
+        elbow=(0, 0, -96),
+        wrist=(5, -10, 0),
+        curl=dict(index=42, middle=55, ring=62, pinky=66, thumb=32),
+    ),
+    "pointing": dict(
+        shoulder=(-42, -58, 0),
+        elbow=(0, 0, -48),
+        wrist=(15, 0, 0),
+        curl=dict(index=0, middle=78, ring=82, pinky=84, thumb=35),
+    ),
 }
 
 ARM_JOINTS: dict[str, list[int]] = {}

@@ -54,7 +54,7 @@ class Filter:
         self.b, self.a = np.asarray(b, float), np.asarray(a, float)
         self.zi = np.zeros((max(len(self.a), len(self.b)) - 1, dims))
 
-    def settle(self, value: np.ndarray) -> "Filter":
+    def settle(self, value: np.ndarray) -> Filter:
         """Start as if ``value`` had always been the input: the output begins there, not at zero."""
         self.zi = lfilter_zi(self.b, self.a)[:, None] * np.asarray(value, float).reshape(1, -1)
         return self

@@ -7,12 +7,12 @@ import math
 
 import numpy as np
 
-from convodrive.atomic import write_text_atomic
 from convodrive.audio.source import ANALYSIS_RATE, motion_frames_for
 from convodrive.backends.base import Backend
 from convodrive.generators.base import Generator
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.skeleton import JOINT_INDEX
+from convodrive.plumbing.atomic import write_text_atomic
 
 
 class NodGenerator(Generator):

@@ -1,0 +1,1 @@
+"""Evaluation: figures computed from motion and audio alone, never from a generator's internals."""

@@ -1,0 +1,126 @@
+"""Runs one drive: audio → generator → retargeter → backends, under the scheduler's clock."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from convodrive import FPS
+from convodrive.audio.source import ANALYSIS_RATE, CHUNK_SAMPLES, AudioSource, ChannelMap
+from convodrive.backends.base import Session
+from convodrive.generators.base import Generator, take_seed
+from convodrive.pipeline.backends import close_all, make_backends, open_backends, safe_outputs
+from convodrive.pipeline.config import load_run_config
+from convodrive.plugins import GENERATOR_GROUP, load_plugin
+from convodrive.plumbing.errors import UserError
+from convodrive.scheduler import MonotonicClock, Scheduler, SimulatedClock, build_report, write_report
+
+DEFAULT_GENERATOR = "procedural"
+
+
+@dataclasses.dataclass
+class DriveRequest:
+    audio: Path
+    generator: str = DEFAULT_GENERATOR
+    backends: tuple[str, ...] = ("record",)
+    config: Path | None = None
+    out_dir: Path = Path("convodrive-out")
+    seed: int = 0
+    samples: int = 1
+    realtime: bool | None = None
+    """True: the wall clock; False: a simulated clock; None: real time if any backend is real-time
+    (hardware must be paced at 30 fps), else offline."""
+    channels: ChannelMap | None = None
+    generator_options: dict[str, Any] = dataclasses.field(default_factory=dict)
+    backend_options: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass
+class DriveResult:
+    report: dict[str, Any]
+    report_path: Path
+    summary_path: Path
+    outputs: list[Path]
+
+
+def drive(
+    request: DriveRequest,
+    on_frame: Callable[[int, int], None] | None = None,
+    on_start: Callable[[bool], None] | None = None,
+) -> DriveResult:
+    """Run one session end to end and write its report. ``UserError`` for any user mistake."""
+    if request.samples < 1:
+        raise UserError(f"--samples must be at least 1, got {request.samples}")
+    if not request.backends:
+        raise UserError("name at least one backend with --backend")
+    source = AudioSource(request.audio, request.channels)
+    config = load_run_config(request.config)
+    planned = make_backends(request.backends, config, request.backend_options)
+    realtime = request.realtime if request.realtime is not None else any(p.backend.realtime for p in planned)
+    out_dir = Path(request.out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    session = Session(
+        out_dir=out_dir,
+        audio_path=Path(request.audio),
+        duration=source.duration,
+        num_frames=source.info.num_motion_frames,
+        fps=FPS,
+        offline=not realtime,
+        seed=request.seed,
+        num_samples=request.samples,
+    )
+
+    gen_cls = load_plugin(GENERATOR_GROUP, request.generator)
+    gen_options = {**config.generator_options(request.generator), **request.generator_options}
+    generator: Generator = gen_cls(gen_options)
+    seeds = [take_seed(request.seed, i) for i in range(request.samples)]
+    # Real time reads audio in 100 ms chunks (the streaming latency); offline in 1 s chunks, which
+    # gives the same frames (generators are chunk-invariant) with less per-chunk overhead.
+    chunk_samples = CHUNK_SAMPLES if realtime else ANALYSIS_RATE
+
+    routes, failed_at_open = open_backends(planned, session)
+    total = session.num_frames or 0
+
+    def frame_done(index: int) -> None:
+        if on_frame is not None:
+            on_frame(index + 1, total)
+
+    try:
+        scheduler = Scheduler(
+            generator.stream_takes(source.chunks(chunk_samples), seeds),
+            routes,
+            clock=MonotonicClock() if realtime else SimulatedClock(),
+            expected_frames=session.num_frames,
+            audio_seconds=source.duration,
+            on_frame=frame_done,
+            on_start=(lambda: on_start(realtime)) if on_start is not None else None,
+        )
+    except BaseException:  # e.g. Ctrl-C before the scheduler took the backends over
+        close_all(routes)
+        raise
+    result = scheduler.run()  # from here the scheduler closes every backend, whatever happens
+    outputs = [p for r in routes for p in safe_outputs(r.backend)]
+    context = {
+        "audio": {
+            "path": str(request.audio),
+            "sample_rate": source.info.sample_rate,
+            "channels": source.info.channels,
+            "duration_s": round(source.duration, 3),
+            "self_channel": source.channel_map.self_channel,
+            "other_channel": source.channel_map.other_channel,
+        },
+        "generator": {
+            "name": request.generator,
+            "seed": request.seed,
+            "samples": request.samples,
+            "lookahead_frames": generator.lookahead_frames,
+            "options": gen_options,
+        },
+        "config": str(request.config) if request.config else None,
+        "outputs": [str(p) for p in outputs],
+    }
+    report = build_report(result, context, failed_at_open)
+    report_path, summary_path = write_report(report, out_dir)
+    return DriveResult(report, report_path, summary_path, outputs)

@@ -1,0 +1,12 @@
+"""Plugins: discovery through entry points, and the options each plugin declares."""
+
+from convodrive.plugins.registry import (
+    BACKEND_GROUP,
+    GENERATOR_GROUP,
+    PluginInfo,
+    list_plugins,
+    load_plugin,
+    missing_modules,
+)
+
+__all__ = ["BACKEND_GROUP", "GENERATOR_GROUP", "PluginInfo", "list_plugins", "load_plugin", "missing_modules"]

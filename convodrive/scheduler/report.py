@@ -1,0 +1,145 @@
+"""The run report: what every run ends with, as JSON (for tools) and as a readable summary."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from convodrive import __version__
+from convodrive.plumbing.atomic import write_text_atomic
+from convodrive.scheduler.workers import BackendStats
+
+
+@dataclasses.dataclass
+class RunResult:
+    """Everything the run report is made of; see ``convodrive.scheduler.report``."""
+
+    mode: str
+    frames: int
+    expected_frames: int | None
+    wall_seconds: float
+    clock_seconds: float
+    """From the first frame's deadline to one period after the last dispatch: the clock's own span."""
+    jitter_ms: list[float]
+    late_frames: int
+    generator_seconds: float
+    audio_seconds: float
+    drift_frames: float
+    interrupted: bool
+    backends: list[BackendStats]
+    backend_reports: dict[str, dict[str, Any]]
+    backend_health: dict[str, dict[str, Any]]
+    clock_priority: str = "normal"
+
+
+def _percentiles(values: list[float], scale: float = 1.0) -> dict[str, float] | None:
+    if not values:
+        return None
+    arr = np.asarray(values, dtype=np.float64) * scale
+    return {
+        "p50": round(float(np.percentile(arr, 50)), 3),
+        "p99": round(float(np.percentile(arr, 99)), 3),
+        "max": round(float(arr.max()), 3),
+    }
+
+
+def _rate(frames: int, seconds: float) -> float | None:
+    return round(frames / seconds, 2) if seconds > 0 else None
+
+
+def build_report(
+    result: RunResult, context: dict[str, Any], failed_at_open: dict[str, str] | None = None
+) -> dict[str, Any]:
+    """Turn a scheduler result plus run context (audio, generator, outputs) into the report dict."""
+    backends: dict[str, Any] = {}
+    for stats in result.backends:
+        backends[stats.name] = {
+            "frames_sent": stats.sent,
+            "frames_dropped": stats.dropped,
+            "errors": stats.errors,
+            "last_error": stats.last_error,
+            "failed": stats.failed,
+            "close_error": stats.close_error,
+            "send_ms": _percentiles(stats.send_seconds, 1000.0),
+            "health": result.backend_health.get(stats.name, {}),
+            "health_events": stats.health_events,
+            "report": result.backend_reports.get(stats.name, {}),
+        }
+    for name, problem in (failed_at_open or {}).items():
+        backends[name] = {"failed": True, "open_error": problem, "frames_sent": 0, "frames_dropped": result.frames}
+    gen_rtf = result.audio_seconds / result.generator_seconds if result.generator_seconds > 0 else None
+    report = {
+        "convodrive_version": __version__,
+        "mode": result.mode,
+        "interrupted": result.interrupted,
+        "frames": result.frames,
+        "expected_frames": result.expected_frames,
+        "wall_seconds": round(result.wall_seconds, 3),
+        "clock_seconds": round(result.clock_seconds, 3),
+        # Real time: the clock's own rate. Offline: how fast every backend got through the run.
+        "effective_fps": _rate(
+            result.frames, result.clock_seconds if result.mode == "realtime" else result.wall_seconds
+        ),
+        "jitter_ms": _percentiles(result.jitter_ms),
+        "late_frames": result.late_frames,
+        "clock_priority": result.clock_priority,
+        "drift_frames": round(result.drift_frames, 3),
+        "generator_real_time_factor": round(gen_rtf, 1) if gen_rtf else None,
+        "backends": backends,
+    }
+    report.update(context)
+    return report
+
+
+def summarize(report: dict[str, Any]) -> str:
+    """A few readable lines: the figures a user looks at first."""
+    lines = [
+        (
+            f"realtime run: {report['frames']} frames, clock at {report['effective_fps']} fps; {report['wall_seconds']:.2f} s in all"
+            if report["mode"] == "realtime"
+            else f"offline run: {report['frames']} frames in {report['wall_seconds']:.2f} s ({report['effective_fps']} fps)"
+        )
+        + (" — interrupted" if report["interrupted"] else ""),
+    ]
+    jit = report.get("jitter_ms")
+    if jit:
+        lines.append(
+            f"frame-time jitter p50 {jit['p50']:.3f} ms, p99 {jit['p99']:.3f} ms, max {jit['max']:.3f} ms; "
+            f"late frames {report['late_frames']}; drift {report['drift_frames']:.2f} frames"
+        )
+    if report.get("generator_real_time_factor"):
+        lines.append(
+            f"generator {report.get('generator', {}).get('name', '?')}: {report['generator_real_time_factor']}x real time"
+        )
+    for name, b in report["backends"].items():
+        state = "FAILED" if b.get("failed") else b.get("health", {}).get("status", "ok")
+        detail = b.get("open_error") or b.get("last_error") or ""
+        lines.append(
+            f"  {name:<10} {state:<9} sent {b.get('frames_sent', 0):>6}  dropped {b.get('frames_dropped', 0):>6}  "
+            f"errors {b.get('errors', 0):>4}" + (f"  ({detail})" if detail else "")
+        )
+    return "\n".join(lines)
+
+
+def write_report(report: dict[str, Any], out_dir: Path) -> tuple[Path, Path]:
+    json_path = out_dir / "run_report.json"
+    text_path = out_dir / "run_report.txt"
+    write_text_atomic(json_path, json.dumps(report, indent=2, default=_json_default) + "\n")
+    write_text_atomic(text_path, summarize(report) + "\n")
+    return json_path, text_path
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (np.floating,)):
+        return float(obj)
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    return str(obj)

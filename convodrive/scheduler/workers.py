@@ -1,0 +1,97 @@
+"""One worker thread per backend: it sends what arrives in its slot and closes the backend at the end."""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+from convodrive.scheduler.route import Route
+from convodrive.scheduler.slots import END, BlockingSlot, DropOldestSlot
+
+MAX_CONSECUTIVE_ERRORS = 90
+"""A backend that raised on 3 s of consecutive frames is marked failed and no longer called."""
+
+
+@dataclasses.dataclass
+class BackendStats:
+    name: str
+    sent: int = 0
+    dropped: int = 0
+    errors: int = 0
+    last_error: str = ""
+    failed: bool = False
+    close_error: str = ""
+    send_seconds: list[float] = dataclasses.field(default_factory=list)
+    health_events: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+
+
+class BackendWorker(threading.Thread):
+    """Runs one backend: sends what arrives in its slot, and closes it when the run ends."""
+
+    def __init__(self, route: Route, paced: bool, now: Callable[[], float]) -> None:
+        super().__init__(name=f"backend-{route.backend.name}", daemon=True)
+        self.route = route
+        self.slot: DropOldestSlot | BlockingSlot
+        if not paced:
+            self.slot = BlockingSlot()
+        elif route.backend.realtime:
+            self.slot = DropOldestSlot(DropOldestSlot.LATEST_CAPACITY)
+        else:
+            self.slot = DropOldestSlot(DropOldestSlot.BACKLOG_CAPACITY)
+        self.stats = BackendStats(route.backend.name)
+        self._now = now
+        self._last_status = "ok"
+
+    def run(self) -> None:
+        backend = self.route.backend
+        consecutive = 0
+        try:
+            while True:
+                item = self.slot.get()
+                if item is END:
+                    break
+                if self.stats.failed:
+                    self.stats.dropped += 1
+                    continue
+                start = time.perf_counter()
+                try:
+                    backend.send(item)
+                    consecutive = 0
+                    self.stats.sent += 1
+                except Exception as exc:  # a backend fault degrades this backend only
+                    consecutive += 1
+                    self.stats.errors += 1
+                    self.stats.last_error = f"{exc.__class__.__name__}: {exc}"
+                    if consecutive >= MAX_CONSECUTIVE_ERRORS:
+                        self.stats.failed = True
+                        self._event("failed", self.stats.last_error)
+                finally:
+                    self.stats.send_seconds.append(time.perf_counter() - start)
+                self._watch_health()
+        finally:
+            self.close_backend()
+
+    def close_backend(self) -> None:
+        try:
+            self.route.backend.close()
+        except Exception as exc:
+            self.stats.close_error = f"{exc.__class__.__name__}: {exc}"
+            self._event("close-error", self.stats.close_error)
+        self.stats.dropped += self.slot.dropped
+
+    def _watch_health(self) -> None:
+        if self.stats.sent % 30:
+            return
+        try:
+            status = str(self.route.backend.health().get("status", "ok"))
+        except Exception as exc:
+            status = f"health-error: {exc}"
+        if status != self._last_status:
+            self._event(status, "")
+            self._last_status = status
+
+    def _event(self, status: str, detail: str) -> None:
+        self.stats.health_events.append({"time": round(self._now(), 3), "status": status, "detail": detail})

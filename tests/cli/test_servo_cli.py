@@ -1,0 +1,110 @@
+"""``convodrive emulate`` and ``convodrive servo`` against emulated buses."""
+
+from __future__ import annotations
+
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import dynamixel_sdk as sdk
+import yaml
+
+from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, start_emulated_head
+from convodrive.cli.main import main
+from convodrive.cli.servo import calibrate, set_joint_limits
+from convodrive.retargeting.profile import resolve_profile_path
+
+
+def test_scan_lists_the_emulated_servos(capsys) -> None:  # type: ignore[no-untyped-def]
+    with DynamixelEmulator([1, 2, 7, 30], "xl330") as emu:
+        assert main(["servo", "scan", "--port", emu.port]) == 0
+    out = capsys.readouterr().out.splitlines()
+    rows = [line.split() for line in out[1:]]
+    assert [(int(r[1]), r[2], int(r[3])) for r in rows] == [(i, "xl330-m288", 52) for i in (1, 2, 7, 30)]
+
+
+def test_scan_and_monitor_user_errors(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    with DynamixelEmulator([], "xl330") as emu:
+        assert main(["servo", "scan", "--port", emu.port]) == 2
+        assert main(["servo", "monitor", "--port", emu.port, "--once"]) == 2
+    assert main(["servo", "scan", "--port", str(tmp_path / "ttyUSB9")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 3 and "no servo answers" in err[0] and "no servo answers" in err[1]
+    assert "no such port" in err[2]
+
+
+def test_monitor_once_shows_health(capsys, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    monkeypatch.setenv("COLUMNS", "200")
+    with start_emulated_head() as emu:
+        emu.hardware_error(4, "overheating")
+        emu.vanish(6)
+        assert main(["servo", "monitor", "--port", emu.port, "--once"]) == 0
+    out = capsys.readouterr().out
+    lines = {line.split("│")[1].strip(): line for line in out.splitlines() if line.count("│") > 5}
+    assert "overheating" in lines["jaw"] and "fault" in lines["jaw"]
+    assert "lost" in lines["eye_tilt"] and "ok" in lines["neck_pan"]
+
+
+def test_calibrate_writes_ranges_back_and_keeps_the_rest(tmp_path: Path) -> None:
+    source = resolve_profile_path("servo_head")
+    profile = tmp_path / "head.yaml"
+    shutil.copy(source, profile)
+    before = profile.read_text()
+    sweeps = {"neck_pan": (1300, 2800), "jaw": (1850, 2040)}
+    with start_emulated_head() as emu:
+
+        def user_moves(name: str) -> None:  # the person turning the horn, then pressing Enter
+            servo = emu.servo({"neck_pan": 1, "jaw": 4}[name])
+            lo, hi = sweeps[name]
+            for tick in list(range(2048, hi, 150)) + [hi] + list(range(hi, lo, -300)) + [lo]:
+                servo.move_by_hand(tick)
+                time.sleep(0.15 if tick in (lo, hi) else 0.01)  # a person lingers at the end stops
+
+        limits = calibrate(
+            str(profile), port=emu.port, joints=["neck_pan", "jaw"], done=user_moves, say=lambda text: None
+        )
+        torque = [emu.servo(i).torque for i in range(1, 8)]
+    assert limits == sweeps and not any(torque)
+    after = profile.read_text()
+    data = yaml.safe_load(after)["backends"]["dynamixel"]["joints"]
+    assert (data["neck_pan"]["min_tick"], data["neck_pan"]["max_tick"]) == sweeps["neck_pan"]
+    assert (data["jaw"]["min_tick"], data["jaw"]["max_tick"]) == sweeps["jaw"]
+    changed = [(a, b) for a, b in zip(before.splitlines(), after.splitlines()) if a != b]
+    assert len(changed) == 2 and all("min_tick" in b for _, b in changed)
+    assert before.count("#") == after.count("#")
+
+
+def test_set_limits_in_block_style_yaml() -> None:
+    text = (
+        "backends:\n  dynamixel:\n    joints:\n      a:\n        id: 1\n        min_tick: 5  # old\n"
+        "      b:\n        id: 2\n  maestro:\n    joints:\n      a: {channel: 0}\n"
+    )
+    out = set_joint_limits(text, "dynamixel", {"a": (10, 20), "b": (30, 40)}, Path("x.yaml"))
+    data = yaml.safe_load(out)["backends"]
+    assert data["dynamixel"]["joints"] == {
+        "a": {"id": 1, "min_tick": 10, "max_tick": 20},
+        "b": {"id": 2, "min_tick": 30, "max_tick": 40},
+    }
+    assert "# old" in out and data["maestro"]["joints"]["a"] == {"channel": 0}
+
+
+def test_emulate_command_serves_until_interrupted() -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "convodrive.cli.main", "emulate", "dynamixel", "--ids", "1-2", "--model", "xm430"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        port_path = proc.stdout.readline().strip()
+        port = sdk.PortHandler(port_path)
+        assert port.openPort()
+        ph = sdk.PacketHandler(2.0)
+        assert [ph.ping(port, i)[:2] for i in (1, 2)] == [(1020, sdk.COMM_SUCCESS)] * 2
+        port.closePort()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=10) == 0

@@ -1,0 +1,118 @@
+"""The scheduler's contract: absolute deadlines, per-backend isolation, offline delivery, reports."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import pytest
+
+from bench.bench_scheduler import run_bench
+from convodrive.backends.base import Session
+from convodrive.scheduler import DropOldestSlot, MonotonicClock, Route, Scheduler, SimulatedClock
+from convodrive.scheduler.report import build_report, summarize
+from tests.doubles import CountingBackend, FailingBackend, SlowBackend, neutral_frames
+
+
+def _open(backends, tmp_path: Path, offline: bool):
+    for b in backends:
+        b.open(b.spec, Session(out_dir=tmp_path, offline=offline))
+    return [Route(b) for b in backends]
+
+
+def test_slow_and_failing_backends_never_stall_the_clock_or_the_others(tmp_path: Path) -> None:
+    fast = CountingBackend({"name": "fast"})
+    slow = SlowBackend({"name": "slow", "delay": 0.2})
+    failing = FailingBackend({"name": "failing"})
+    frames = 45  # 1.5 s of wall clock
+    result = Scheduler(
+        neutral_frames(frames), _open([fast, slow, failing], tmp_path, False), clock=MonotonicClock()
+    ).run()
+
+    assert result.frames == frames
+    assert fast.indices == list(range(frames)), "the fast backend must get every frame, in order"
+    assert 0 < len(slow.indices) < frames // 2, "the slow backend drops its own frames"
+    assert slow.indices[-1] == frames - 1, "the slow backend still ends on the newest frame"
+    stats = {s.name: s for s in result.backends}
+    assert stats["slow"].dropped == frames - len(slow.indices)
+    assert stats["failing"].errors == frames and "port vanished" in stats["failing"].last_error
+    # 45 frames at 30 fps take 1.5 s; a stalled clock would take 45 x 0.2 s = 9 s.
+    assert result.wall_seconds < 4.0
+    assert all(b.closed for b in (fast, slow, failing))
+
+
+def test_offline_delivers_every_frame_to_every_backend_without_sleeping(tmp_path: Path) -> None:
+    fast = CountingBackend({"name": "fast"})
+    slow = SlowBackend({"name": "slow", "delay": 0.01})
+    frames = 300  # 10 s of motion
+    result = Scheduler(neutral_frames(frames), _open([fast, slow], tmp_path, True), clock=SimulatedClock()).run()
+    assert fast.indices == list(range(frames))
+    assert slow.indices == list(range(frames))
+    assert result.wall_seconds < 8.0, "offline runs use a simulated clock, not the wall clock"
+    assert result.jitter_ms == [] and result.late_frames == 0
+
+
+def test_request_stop_closes_every_backend(tmp_path: Path) -> None:
+    fast = CountingBackend({"name": "fast"})
+    scheduler = Scheduler(neutral_frames(10_000), _open([fast], tmp_path, False), clock=MonotonicClock())
+    threading.Timer(0.3, scheduler.request_stop).start()
+    result = scheduler.run()
+    assert result.interrupted
+    assert 0 < result.frames < 100
+    assert fast.closed and fast.indices == list(range(result.frames))
+
+
+def test_generator_error_reaches_the_caller_and_backends_still_close(tmp_path: Path) -> None:
+    def broken():
+        yield from neutral_frames(5)
+        raise RuntimeError("model exploded")
+
+    fast = CountingBackend({"name": "fast"})
+    with pytest.raises(RuntimeError, match="model exploded"):
+        Scheduler(broken(), _open([fast], tmp_path, True), clock=SimulatedClock()).run()
+    assert fast.closed and fast.indices == list(range(5))
+
+
+def test_latest_slot_keeps_the_newest_and_counts_drops() -> None:
+    slot = DropOldestSlot(DropOldestSlot.LATEST_CAPACITY)
+    for i in range(5):
+        slot.put(i)
+    slot.close()
+    assert [slot.get(), slot.get(), slot.get()] == [2, 3, 4]
+    assert slot.dropped == 2
+    end = slot.get()
+    assert end not in (2, 3, 4) and slot.get() is end  # the end marker follows the last frame
+
+
+def test_file_backends_in_a_real_time_run_get_every_frame(tmp_path: Path) -> None:
+    """A recorder beside a servo head: the head skips frames it cannot keep up with, the file does not."""
+    head = SlowBackend({"name": "head", "delay": 0.1})
+    head.realtime = True
+    recorder = SlowBackend({"name": "recorder", "delay": 0.05})
+    recorder.realtime = False
+    frames = 30
+    result = Scheduler(neutral_frames(frames), _open([head, recorder], tmp_path, False), clock=MonotonicClock()).run()
+    assert recorder.indices == list(range(frames))
+    assert len(head.indices) < frames and head.indices[-1] == frames - 1
+    assert abs(result.drift_frames) < 1.0
+
+
+def test_report_has_the_figures_and_a_readable_summary(tmp_path: Path) -> None:
+    fast = CountingBackend({"name": "fast"})
+    result = Scheduler(neutral_frames(20), _open([fast], tmp_path, False), clock=MonotonicClock()).run()
+    report = build_report(result, {"generator": {"name": "test"}})
+    assert report["frames"] == 20 and report["mode"] == "realtime"
+    assert set(report["jitter_ms"]) == {"p50", "p99", "max"}
+    assert report["backends"]["fast"]["frames_sent"] == 20
+    assert report["backends"]["fast"]["frames_dropped"] == 0
+    text = summarize(report)
+    assert "20 frames" in text and "jitter" in text and "fast" in text
+
+
+def test_short_benchmark_counts() -> None:
+    """The 5-second version of bench/bench_scheduler.py: counts, not timings."""
+    out = run_bench(5.0, load=True)
+    assert out["frames"] == 150
+    assert out["frames_lost"]["fast_a"] == 0 and out["frames_lost"]["fast_b"] == 0
+    assert out["frames_lost"]["slow"] > 100
+    assert abs(out["drift_frames"]) < 1.0
