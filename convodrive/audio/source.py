@@ -1,4 +1,4 @@
-"""Dyadic audio input: any file soundfile reads, resampled to the analysis rate, read in chunks.
+"""Dyadic audio input: WAV, FLAC, OGG, MP3 (libsndfile) and M4A/AAC (ffmpeg), read in chunks.
 
 Channel 0 is self, channel 1 the partner; a mono file means the partner is silent; a file with
 more channels needs an explicit choice. Files are read block by block and resampled with a
@@ -13,19 +13,23 @@ import math
 from collections.abc import Iterator
 from fractions import Fraction
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import soundfile as sf
 from scipy.signal import resample_poly
 
 from convodrive import FPS
+from convodrive.audio import ffmpeg
 from convodrive.plumbing.errors import InputFileError
 
 ANALYSIS_RATE = 16_000
 """Every generator sees audio at 16 kHz: enough for speech, and what pocketsphinx expects."""
 CHUNK_SAMPLES = 1_600
 """100 ms chunks: exactly 3 motion frames at 30 fps."""
-SUPPORTED_FORMATS = {"WAV", "WAVEX", "RF64", "W64", "FLAC", "OGG", "AIFF"}
+SUPPORTED_FORMATS = {"WAV", "WAVEX", "RF64", "W64", "FLAC", "OGG", "AIFF", "MP3"}
+"""libsndfile's formats that convodrive reads; M4A and AAC go through ffmpeg (``audio.ffmpeg``)."""
+READABLE = "WAV, FLAC, OGG, MP3 and M4A/AAC"
 _BLOCK_SECONDS = 2.0
 
 
@@ -103,6 +107,12 @@ class AudioInfo:
     frames: int
     format: str
     subtype: str
+    exact_frames: bool = True
+    """False where the file only estimates its length (raw AAC): reading stops where decoding does."""
+
+    @property
+    def decoder(self) -> str:
+        return "ffmpeg" if self.format in ffmpeg.CONTAINERS.values() else "libsndfile"
 
     @property
     def duration(self) -> float:
@@ -128,6 +138,13 @@ class AudioSource:
             for block in fh.blocks(blocksize=int(_BLOCK_SECONDS * fh.samplerate), dtype="float32", always_2d=True):
                 if not np.all(np.isfinite(block)):
                     raise InputFileError(self.path, "audio holds NaN or infinite samples")
+
+    def _open(self, cols: list[int]) -> _Reader:
+        if self.info.decoder == "ffmpeg":
+            limit = self.info.frames if self.info.exact_frames else None
+            reader = ffmpeg.FfmpegReader(self.path, self.info.channels, limit, self.info.sample_rate)
+            return _Columns(reader, cols)
+        return _Columns(_SoundfileReader(self.path), cols)
 
     @property
     def duration(self) -> float:
@@ -161,7 +178,8 @@ class AudioSource:
         """Resample block by block with ``ctx`` native samples of context on each side.
 
         Both the block length and the context are multiples of ``down``, so each block maps to a
-        whole number of output samples and the context trims off exactly.
+        whole number of output samples and the context trims off exactly. The end is where the
+        reader runs dry, so a decoder that only estimated the length still ends cleanly.
         """
         ratio = Fraction(ANALYSIS_RATE, self.info.sample_rate)
         up, down = ratio.numerator, ratio.denominator
@@ -170,15 +188,17 @@ class AudioSource:
         cols = [self.channel_map.self_channel] + (
             [self.channel_map.other_channel] if self.channel_map.other_channel is not None else []
         )
-        total = self.info.frames
-        with sf.SoundFile(self.path) as fh:
+        with self._open(cols) as reader:
             history = np.zeros((ctx, len(cols)), np.float32)
-            lookahead = _read_cols(fh, block + ctx, cols)
-            pos = 0
-            while pos < total:
-                current_len = min(block, total - pos)
-                more = _read_cols(fh, block, cols) if pos + block < total else np.zeros((0, len(cols)), np.float32)
-                ahead = np.concatenate([lookahead, more])
+            ahead = reader.read(block + ctx)
+            dry = len(ahead) < block + ctx
+            while len(ahead):
+                if not dry:
+                    more = reader.read(block)
+                    dry = len(more) < block
+                    ahead = np.concatenate([ahead, more])
+                current_len = min(block, len(ahead))
+                last = dry and len(ahead) <= block
                 window = np.concatenate([history, ahead[: current_len + ctx]])
                 if len(window) < 2 * ctx + current_len:
                     window = np.concatenate(
@@ -189,18 +209,45 @@ class AudioSource:
                 else:
                     out = resample_poly(window, up, down, axis=0).astype(np.float32)
                 first = ctx * up // down
-                count = current_len * up // down if pos + current_len < total else math.ceil(current_len * up / down)
+                count = current_len * up // down if not last else math.ceil(current_len * up / down)
                 out = out[first : first + count]
-                pos += current_len
-                last = pos >= total
                 yield out[:, 0], (out[:, 1] if out.shape[1] > 1 else np.zeros(len(out), np.float32)), last
                 history = window[current_len : current_len + ctx] if ctx else history
-                lookahead = ahead[current_len:]
+                ahead = ahead[current_len:]
 
 
-def _read_cols(fh: sf.SoundFile, n: int, cols: list[int]) -> np.ndarray:
-    data = fh.read(n, dtype="float32", always_2d=True)
-    return np.ascontiguousarray(data[:, cols])
+class _Reader(Protocol):
+    def read(self, n: int) -> np.ndarray:
+        """Up to ``n`` frames, (m, channels) float32; fewer only at the end."""
+
+    def close(self) -> None: ...
+
+
+class _SoundfileReader:
+    def __init__(self, path: Path) -> None:
+        self._fh = sf.SoundFile(path)
+
+    def read(self, n: int) -> np.ndarray:
+        return self._fh.read(n, dtype="float32", always_2d=True)
+
+    def close(self) -> None:
+        self._fh.close()
+
+
+class _Columns:
+    """A reader that keeps the chosen channels, in order (self first), as a context manager."""
+
+    def __init__(self, reader: _Reader, cols: list[int]) -> None:
+        self._reader, self._cols = reader, cols
+
+    def read(self, n: int) -> np.ndarray:
+        return np.ascontiguousarray(self._reader.read(n)[:, self._cols])
+
+    def __enter__(self) -> _Columns:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._reader.close()
 
 
 def probe_audio(path: str | Path) -> AudioInfo:
@@ -215,15 +262,24 @@ def probe_audio(path: str | Path) -> AudioInfo:
     try:
         info = sf.info(str(path))
     except (sf.LibsndfileError, RuntimeError, TypeError) as exc:
-        detail = str(exc).split(":")[-1].strip() or "unreadable"
-        raise InputFileError(path, f"not a readable audio file ({detail})") from None
-    if info.format not in SUPPORTED_FORMATS:
-        raise InputFileError(path, f"unsupported audio format {info.format} (convodrive reads WAV, FLAC and OGG)")
-    if info.frames <= 0:
+        found = ffmpeg.probe(path)
+        if found is None:
+            detail = str(exc).split(":")[-1].strip() or "unreadable"
+            raise InputFileError(path, f"not a readable audio file ({detail})") from None
+        result = AudioInfo(
+            path, found.sample_rate, found.channels, found.frames, found.format, found.codec, found.exact
+        )
+    else:
+        if info.format not in SUPPORTED_FORMATS:
+            raise InputFileError(path, f"unsupported audio format {info.format} (convodrive reads {READABLE})")
+        result = AudioInfo(path, int(info.samplerate), int(info.channels), int(info.frames), info.format, info.subtype)
+    if result.frames <= 0:
         raise InputFileError(path, "audio holds no samples")
-    if info.samplerate <= 0:
-        raise InputFileError(path, f"invalid sample rate {info.samplerate}")
-    return AudioInfo(path, int(info.samplerate), int(info.channels), int(info.frames), info.format, info.subtype)
+    if result.sample_rate <= 0:
+        raise InputFileError(path, f"invalid sample rate {result.sample_rate}")
+    if result.channels <= 0:
+        raise InputFileError(path, "audio holds no channels")
+    return result
 
 
 def _resolve_channels(info: AudioInfo, channel_map: ChannelMap | None) -> ChannelMap:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import subprocess
 import tracemalloc
 from fractions import Fraction
 from pathlib import Path
@@ -157,3 +158,133 @@ def test_long_file_in_constant_memory(tmp_path: Path) -> None:
         tracemalloc.stop()
     assert total == minutes * 60 * ANALYSIS_RATE
     assert peak < file_size / 10, f"peak {peak / 1e6:.1f} MB for a {file_size / 1e6:.0f} MB file"
+
+
+def _encode(src: Path, dst: Path, *args: str) -> Path:
+    subprocess.run(["ffmpeg", "-v", "error", "-y", "-i", str(src), *args, str(dst)], check=True)
+    return dst
+
+
+def _bursts(rate: int) -> np.ndarray:
+    """2 s of stereo: a noise burst on each channel at a known place, for alignment checks."""
+    rng = np.random.default_rng(0)
+    data = np.zeros((2 * rate, 2), np.float32)
+    data[rate // 2 : rate // 2 + 4000, 0] = 0.5 * rng.standard_normal(4000)
+    data[rate : rate + 4000, 1] = 0.5 * rng.standard_normal(4000)
+    return data
+
+
+def _burst_start(voice: np.ndarray, reference: np.ndarray) -> int:
+    return int(np.argmax(np.correlate(voice, reference, "valid")))
+
+
+@pytest.mark.parametrize(
+    "name, encode",
+    [
+        ("libsndfile.mp3", lambda wav, dst: sf.write(dst, sf.read(wav)[0], 44100, format="MP3") or dst),
+        ("lame.mp3", lambda wav, dst: _encode(wav, dst, "-c:a", "libmp3lame", "-b:a", "128k")),
+        ("aac.m4a", lambda wav, dst: _encode(wav, dst, "-c:a", "aac", "-b:a", "128k")),
+    ],
+)
+def test_compressed_formats_keep_length_channels_and_timing(tmp_path: Path, name: str, encode) -> None:
+    """MP3 through libsndfile, M4A through ffmpeg: the right channel on the right side, aligned to
+    the sample where the bursts were (no encoder delay left in), and the file's exact length."""
+    data = _bursts(44100)
+    wav = tmp_path / "src.wav"
+    sf.write(wav, data, 44100)
+    path = encode(wav, tmp_path / name)
+    source = AudioSource(path)
+    assert source.info.decoder == ("ffmpeg" if name.endswith("m4a") else "libsndfile")
+    audio = source.read_all()
+    assert len(audio.self_voice) == 2 * ANALYSIS_RATE
+    ref = AudioSource(wav).read_all()
+    burst = ANALYSIS_RATE // 2
+    assert abs(_burst_start(audio.self_voice, ref.self_voice[burst : burst + 1451]) - burst) <= 2
+    assert abs(_burst_start(audio.other_voice, ref.other_voice[2 * burst : 2 * burst + 1451]) - 2 * burst) <= 2
+    assert np.abs(audio.self_voice[2 * burst :]).max() < 0.05  # the partner's burst stays on its channel
+
+
+def test_raw_aac_streams_to_its_end(tmp_path: Path) -> None:
+    """ADTS AAC states no length: the source reads until the decoder stops."""
+    wav = tmp_path / "src.wav"
+    sf.write(wav, _bursts(48000), 48000)
+    source = AudioSource(_encode(wav, tmp_path / "a.aac", "-c:a", "aac"))
+    assert source.info.format == "AAC" and not source.info.exact_frames
+    chunks = list(source.chunks())
+    assert chunks[-1].final and all(not c.final for c in chunks[:-1])
+    assert abs(sum(len(c) for c in chunks) - 2 * ANALYSIS_RATE) < 0.1 * ANALYSIS_RATE
+
+
+def test_long_m4a_in_constant_memory(tmp_path: Path) -> None:
+    """10 minutes of AAC decode through ffmpeg's pipe without holding the audio."""
+    wav = tmp_path / "long.wav"
+    with sf.SoundFile(wav, "w", ANALYSIS_RATE, 2, "PCM_16") as fh:
+        block_data = tones(ANALYSIS_RATE, 30)
+        for _ in range(20):
+            fh.write(block_data)
+    source = AudioSource(_encode(wav, tmp_path / "long.m4a", "-c:a", "aac", "-b:a", "48k"))
+    decoded_bytes = source.info.frames * 2 * 4
+    tracemalloc.start()
+    try:
+        total = sum(len(chunk) for chunk in source.chunks())
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert total == 10 * 60 * ANALYSIS_RATE
+    assert peak < decoded_bytes / 20, f"peak {peak / 1e6:.1f} MB for {decoded_bytes / 1e6:.0f} MB of samples"
+
+
+def _m4a_without_index(p: Path) -> None:
+    wav = p.with_suffix(".src.wav")
+    sf.write(wav, tones(44100, 2.0), 44100)
+    data = _encode(wav, p.with_suffix(".whole.m4a"), "-c:a", "aac").read_bytes()
+    p.write_bytes(data[: len(data) // 2])  # the moov atom is at the end: ffprobe cannot open it
+
+
+def _m4a_video_only(p: Path) -> None:
+    cmd = ["ffmpeg", "-v", "error", "-y", "-f", "lavfi", "-i", "color=c=red:s=32x32:d=1", "-c:v", "mpeg4", "-f", "mp4"]
+    subprocess.run([*cmd, str(p)], check=True)
+
+
+@pytest.mark.parametrize(
+    "make, problem",
+    [
+        (_random_bytes, "not a readable audio file"),
+        (_empty, "empty"),
+        (_text, "not a readable audio file"),
+        (_m4a_without_index, "not a readable audio file"),
+        (_m4a_video_only, "not a readable audio file"),
+    ],
+)
+def test_bad_m4a_files_are_one_line_errors(tmp_path: Path, make, problem: str) -> None:
+    path = tmp_path / "bad.m4a"
+    make(path)
+    with pytest.raises(InputFileError) as err:
+        AudioSource(path)
+    message = str(err.value)
+    assert message.startswith(str(path)) and problem in message and "\n" not in message
+
+
+def test_m4a_without_ffmpeg_is_one_line(tmp_path: Path, monkeypatch) -> None:
+    wav = tmp_path / "src.wav"
+    sf.write(wav, tones(44100, 1.0), 44100)
+    source = AudioSource(_encode(wav, tmp_path / "a.m4a", "-c:a", "aac"))
+    monkeypatch.setattr("convodrive.audio.ffmpeg.shutil.which", lambda name: None)
+    with pytest.raises(InputFileError, match="needs ffmpeg") as err:
+        list(source.chunks())
+    assert str(err.value).startswith(str(tmp_path / "a.m4a"))
+
+
+def test_damaged_m4a_stops_with_one_line_not_a_short_clip(tmp_path: Path) -> None:
+    """AAC decoding skips what it cannot read and exits 0; the source compares what came out with
+    the length the container states, so a damaged file is an error, not a silently shorter run."""
+    wav = tmp_path / "src.wav"
+    sf.write(wav, tones(44100, 6.0), 44100)
+    data = bytearray(_encode(wav, tmp_path / "whole.m4a", "-c:a", "aac").read_bytes())
+    data[2000 : len(data) // 2] = np.random.default_rng(1).integers(0, 256, len(data) // 2 - 2000, np.uint8).tobytes()
+    path = tmp_path / "damaged.m4a"
+    path.write_bytes(bytes(data))
+    source = AudioSource(path)
+    with pytest.raises(InputFileError, match="decoding stopped at") as err:
+        list(source.chunks())
+    assert str(err.value).startswith(str(path)) and "\n" not in str(err.value)
