@@ -19,9 +19,10 @@ layout=$(mktemp -d)
 trap 'rm -rf "$layout"' EXIT
 "$bin/python" scripts/installed_layout.py "$layout"
 
-# mypy: the canonical motion types, the scheduler, plumbing, plugins and the pipeline.
+# mypy: the canonical motion types, the scheduler, plumbing, plugins, the pipeline and the corpus.
 (cd "$layout" && "$repo/$bin/mypy" --config-file "$repo/pyproject.toml" \
-    convodrive/motion convodrive/scheduler convodrive/plumbing convodrive/plugins convodrive/pipeline)
+    convodrive/motion convodrive/scheduler convodrive/plumbing convodrive/plugins convodrive/pipeline \
+    convodrive/corpus)
 
 (cd "$layout" && "$repo/$bin/lint-imports" --config "$repo/.importlinter" --no-cache)
 echo "check: ruff, mypy and import contracts pass"

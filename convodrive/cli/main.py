@@ -24,6 +24,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "convodrive.cli.render",
     "convodrive.cli.emulate",
     "convodrive.cli.servo",
+    "convodrive.cli.corpus",
 )
 
 EXIT_USER_ERROR = 2

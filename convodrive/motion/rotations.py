@@ -1,7 +1,8 @@
 """Rotation conversions between axis-angle, unit quaternions (w, x, y, z), matrices, 6D and Euler.
 
-All functions are vectorised over leading axes and return float64. The 6D form is the first two
-columns of the matrix (Zhou et al. 2019), as ProbTalk stores poses. Euler angles are intrinsic
+All functions are vectorised over leading axes and return float64. The 6D form (Zhou et al. 2019)
+is the first two *rows* of the matrix, PyTorch3D's ``matrix_to_rotation_6d`` convention, which is
+how ProbTalk and EMAGE store poses, so their 6D arrays convert without a transpose. Euler angles are intrinsic
 rotations in the order written: ``"ZXY"`` means R = Rz @ Rx @ Ry, which is how BVH channel lists
 (Zrotation Xrotation Yrotation) compose.
 """
@@ -132,19 +133,20 @@ def matrix_to_axis_angle(m: np.ndarray) -> np.ndarray:
 
 
 def matrix_to_6d(m: np.ndarray) -> np.ndarray:
+    """(..., 6): rows 0 and 1 of the matrix, concatenated (PyTorch3D's order)."""
     m = _as_float(m)
-    return np.concatenate([m[..., :, 0], m[..., :, 1]], axis=-1)
+    return np.concatenate([m[..., 0, :], m[..., 1, :]], axis=-1)
 
 
 def sixd_to_matrix(d6: np.ndarray) -> np.ndarray:
-    """Gram-Schmidt on the two stored columns; any 6-vector of independent columns is valid."""
+    """Gram-Schmidt on the two stored rows; any 6-vector of two independent rows is valid."""
     d6 = _as_float(d6)
     a1, a2 = d6[..., :3], d6[..., 3:]
     b1 = a1 / np.linalg.norm(a1, axis=-1, keepdims=True)
     b2 = a2 - np.sum(b1 * a2, axis=-1, keepdims=True) * b1
     b2 = b2 / np.linalg.norm(b2, axis=-1, keepdims=True)
     b3 = np.cross(b1, b2)
-    return np.stack([b1, b2, b3], axis=-1)
+    return np.stack([b1, b2, b3], axis=-2)
 
 
 def axis_angle_to_6d(aa: np.ndarray) -> np.ndarray:

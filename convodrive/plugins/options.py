@@ -90,7 +90,8 @@ def describe_options(cls: type[PluginOptions]) -> list[OptionInfo]:
     hints = typing.get_type_hints(cls)
     infos = []
     for f in dataclasses.fields(cls):
-        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
+        factory = typing.cast(typing.Callable[[], Any], f.default_factory)
+        default = f.default if f.default is not dataclasses.MISSING else factory()
         m = f.metadata
         infos.append(
             OptionInfo(

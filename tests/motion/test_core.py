@@ -84,7 +84,13 @@ def test_6d_round_trip_and_gram_schmidt() -> None:
     noisy = d6 * 3.0 + np.random.default_rng(0).normal(scale=0.01, size=d6.shape)  # not orthonormal
     m = rot.sixd_to_matrix(noisy)
     np.testing.assert_allclose(np.linalg.det(m), 1.0, atol=1e-9)
-    np.testing.assert_allclose(m[:, :, 0], d6[:, :3], atol=0.02)
+    np.testing.assert_allclose(m[:, 0, :], d6[:, :3], atol=0.02)
+
+
+def test_6d_is_the_first_two_rows_as_pytorch3d_stores_it() -> None:
+    m = Rotation.from_rotvec(sample_axis_angles(seed=4)).as_matrix()
+    np.testing.assert_allclose(rot.matrix_to_6d(m), m[:, :2, :].reshape(-1, 6), atol=0)
+    np.testing.assert_allclose(rot.sixd_to_matrix(m[:, :2, :].reshape(-1, 6)), m, atol=1e-12)
 
 
 @pytest.mark.parametrize("order", ORDERS)
