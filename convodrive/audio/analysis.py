@@ -1,5 +1,9 @@
 """Streaming dyadic analysis: both voices' per-frame features and self's visemes, chunk by chunk.
 
+Each voice's activity is decided with the other channel in view: frames where a channel only
+carries the other person's voice through its microphone (bleed, ``audio.bleed``) do not count as
+that voice speaking.
+
 ``DyadicAnalyzer.push`` takes audio as it arrives, in chunks of any size, and returns the frames
 whose features became final; ``finish`` pads the end with silence and returns the rest. Frame f is
 final once audio up to ``(f + LOOKAHEAD_FRAMES + 1) / 30`` s has arrived: the features need 3.5
@@ -13,6 +17,7 @@ import dataclasses
 
 import numpy as np
 
+from convodrive.audio.bleed import bleed_frames
 from convodrive.audio.features import (
     TRACK_LOOKAHEAD,
     WINDOW,
@@ -111,8 +116,18 @@ class DyadicAnalyzer:
             n += 1
         if n > self._raw_done:
             count = n - self._raw_done
-            s = self._self.push(raw_frames(self._buf_self, self._buf_start, self._raw_done, count))
-            o = self._other.push(raw_frames(self._buf_other, self._buf_start, self._raw_done, count))
+            raw_s = raw_frames(self._buf_self, self._buf_start, self._raw_done, count)
+            raw_o = raw_frames(self._buf_other, self._buf_start, self._raw_done, count)
+            raw_s["bleed"], raw_o["bleed"] = bleed_frames(
+                self._buf_self,
+                self._buf_other,
+                self._buf_start,
+                self._raw_done,
+                count,
+                np.stack([raw_s["db"], raw_o["db"]]),
+            )
+            s = self._self.push(raw_s)
+            o = self._other.push(raw_o)
             self._raw_done = n
             if len(s["db"]):
                 self._pending.append((s, o))

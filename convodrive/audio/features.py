@@ -27,12 +27,14 @@ from convodrive.audio.source import ANALYSIS_RATE
 WINDOW = 1024
 """F0 and spectral window, samples: two periods of a 70 Hz voice."""
 SPECTRUM_WINDOW = 256
-_ACTIVE_DB = -56.0
+ACTIVE_DB = -56.0
 """Frames quieter than this (dBFS) cannot hold a voice: F0 and spectrum are skipped there."""
 TRACK_LOOKAHEAD = 2
 """Raw frames past frame f that deciding frame f's peaks (accents, nuclei) may look at."""
 _F0_MIN, _F0_MAX = 70.0, 400.0
 _HISTORY = 48
+_BLEED_RELEASE = 3
+"""Consecutive bleed frames (the other voice alone in this microphone) that end this voice's turn."""
 """Raw frames of history the tracker keeps (laughter looks back 1 s)."""
 
 
@@ -53,7 +55,9 @@ def samples_needed(num_raw_frames: int) -> int:
     return max(frame_edge(last + 1), frame_centre(last) + WINDOW // 2)
 
 
-RAW_FIELDS = ("db", "f0", "periodicity", "centroid", "f1_frac", "f2_frac", "low_frac", "hiss_frac")
+RAW_FIELDS = ("db", "f0", "periodicity", "centroid", "f1_frac", "f2_frac", "low_frac", "hiss_frac", "bleed")
+"""Per raw frame; ``bleed`` (the frame only carries the other voice, see ``audio.bleed``) is set
+by the dyadic analysis and False for a voice analysed alone."""
 
 
 def raw_frames(padded: np.ndarray, pad_start: int, first: int, count: int) -> dict[str, np.ndarray]:
@@ -75,7 +79,7 @@ def raw_frames(padded: np.ndarray, pad_start: int, first: int, count: int) -> di
     best = np.zeros(count)
     centroid, f1, f2, low, hiss = (np.zeros(count) for _ in range(5))
     # The rest only matters where there may be a voice; skipping quiet frames halves the cost.
-    rows = np.flatnonzero(db > _ACTIVE_DB)
+    rows = np.flatnonzero(db > ACTIVE_DB)
     if len(rows):
         centres = frame_centre(k[rows]) - pad_start
         win16 = sliding_window_view(padded, WINDOW)[centres - WINDOW // 2].astype(np.float64)
@@ -90,6 +94,7 @@ def raw_frames(padded: np.ndarray, pad_start: int, first: int, count: int) -> di
         "f2_frac": f2,
         "low_frac": low,
         "hiss_frac": hiss,
+        "bleed": np.zeros(count, bool),
     }
 
 
@@ -102,14 +107,14 @@ def _pitch(win16: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     lag_min, lag_max = int(rate / _F0_MAX), int(math.ceil(rate / _F0_MIN))
     win = 0.5 * (win16[:, 0::2] + win16[:, 1::2])
     n = win.shape[1]
-    win = win - _row_sum(win)[:, None] / n
-    size = _FFT_SIZE[n + lag_max + 2]  # a length with small prime factors: 635 took 4x as long
-    spec = _rows_rfft(win, size)
-    acf = _rows_irfft(spec.real**2 + spec.imag**2, size)[:, : lag_max + 2]
+    win = win - row_sum(win)[:, None] / n
+    size = FFT_SIZE[n + lag_max + 2]  # a length with small prime factors: 635 took 4x as long
+    spec = rows_rfft(win, size)
+    acf = rows_irfft(spec.real**2 + spec.imag**2, size)[:, : lag_max + 2]
     # Energy of the overlapping parts at each lag: the whole window less its last (head) or first
     # (tail) ``lag`` samples; only the first and last lag_max + 1 running sums are needed.
     sq = win**2
-    total = _row_sum(sq)[:, None]
+    total = row_sum(sq)[:, None]
     m = lag_max + 2
     first = np.concatenate([np.zeros((len(win), 1)), np.cumsum(sq[:, : m - 1], axis=1)], axis=1)
     last = np.concatenate([np.zeros((len(win), 1)), np.cumsum(sq[:, : n - m : -1], axis=1)], axis=1)
@@ -144,7 +149,7 @@ class _FastSizes(dict):
             m += 1
 
 
-_FFT_SIZE = _FastSizes()
+FFT_SIZE = _FastSizes()
 _SPEC_FREQS = np.fft.rfftfreq(SPECTRUM_WINDOW, 1.0 / ANALYSIS_RATE)
 _HANN = np.hanning(SPECTRUM_WINDOW)
 
@@ -153,7 +158,7 @@ def _spectral_shape(win16: np.ndarray) -> tuple[np.ndarray, ...]:
     """Centroid and band fractions of the central ``SPECTRUM_WINDOW`` samples: the mouth shape the
     sound suggests (open vowels: F1 band; front vowels: F2 band; rounded: low band; hiss)."""
     half = (WINDOW - SPECTRUM_WINDOW) // 2
-    mag = np.abs(_rows_rfft(win16[:, half : half + SPECTRUM_WINDOW] * _HANN, SPECTRUM_WINDOW)) ** 2
+    mag = np.abs(rows_rfft(win16[:, half : half + SPECTRUM_WINDOW] * _HANN, SPECTRUM_WINDOW)) ** 2
     f = _SPEC_FREQS
     # Band sums as differences of a running sum along each row: the same arithmetic in every row
     # whatever the batch's shape (a plain sum may change its order with the shape).
@@ -168,24 +173,24 @@ def _spectral_shape(win16: np.ndarray) -> tuple[np.ndarray, ...]:
     def frac(lo: float, hi: float, ref: np.ndarray) -> np.ndarray:
         return band(lo, hi) / ref
 
-    centroid = _row_sum(mag * f) / (c[:, -1] + 1e-12)
+    centroid = row_sum(mag * f) / (c[:, -1] + 1e-12)
     return centroid, frac(550, 1100, speech), frac(1600, 3000, speech), frac(200, 550, speech), frac(3500, 8000, total)
 
 
-def _row_sum(x: np.ndarray) -> np.ndarray:
+def row_sum(x: np.ndarray) -> np.ndarray:
     """Sum along each row, in an order that does not depend on the number of rows (see
     ``_spectral_shape``): each C-contiguous row is reduced on its own by the same pairwise loop."""
     return np.add.reduce(np.ascontiguousarray(x), axis=1)
 
 
-def _rows_irfft(x: np.ndarray, n: int) -> np.ndarray:
+def rows_irfft(x: np.ndarray, n: int) -> np.ndarray:
     rows = len(x)
     padded = np.zeros((-(-rows // 8) * 8, x.shape[1]), complex)
     padded[:rows] = x
     return np.fft.irfft(padded, n=n, axis=1)[:rows]
 
 
-def _rows_rfft(x: np.ndarray, n: int) -> np.ndarray:
+def rows_rfft(x: np.ndarray, n: int) -> np.ndarray:
     """Row-wise rfft, padded to a multiple of 8 rows so every row takes the same SIMD code path
     (the FFT rounds a row differently in a full vector lane than in the remainder), which keeps
     results bit-identical however many frames a batch holds."""
@@ -226,7 +231,23 @@ TRACK_FIELDS = (
     "f2_frac",
     "low_frac",
     "hiss_frac",
+    "bleed",
 )
+
+
+def _fill_holes(flags: np.ndarray, width: int) -> np.ndarray:
+    """``flags`` with gaps of up to ``width`` frames between flagged frames filled: a quiet frame
+    inside the other voice's bleed is not this voice speaking."""
+    out = flags.copy()
+    n = len(flags)
+    for gap in range(1, width + 1):
+        for shift in range(gap):  # frame i lies ``shift + 1`` frames after a flag, gap - shift before one
+            before = np.zeros(n, bool)
+            after = np.zeros(n, bool)
+            before[shift + 1 :] = flags[: n - shift - 1]
+            after[: n - (gap - shift)] = flags[gap - shift :]
+            out |= before & after
+    return out
 
 
 class VoiceTracker:
@@ -244,6 +265,7 @@ class VoiceTracker:
         self._next = 0  # next frame to finalise
         self._vad = False
         self._below = 0
+        self._bleed_run = 0
         self._baseline = float("nan")
         self._since_accent = 99
         self._since_nucleus = 99
@@ -271,11 +293,16 @@ class VoiceTracker:
         for name in ("db", "f0", "centroid", "f1_frac", "f2_frac", "low_frac", "hiss_frac"):
             out[name] = r[name][idx]
         db_all = r["db"].tolist()
+        # The level voice activity reads: a frame that is only the other voice's bleed is silence.
+        bleed = _fill_holes(r["bleed"] > 0, TRACK_LOOKAHEAD)
+        own_all = np.where(bleed, -120.0, r["db"]).tolist()
+        bleed_all = bleed.tolist()
         periodic = (r["periodicity"] >= p.voicing).tolist()
         st_all = (12.0 * np.log2(np.maximum(r["f0"], 1.0) / 100.0)).tolist()
         f1, low = r["f1_frac"].tolist(), r["low_frac"].tolist()
         # Scalar work per frame: plain Python lists and floats here, numpy arrays at the end.
         o_vad, o_voiced, o_env, o_st, o_laugh = [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n
+        out["bleed"] = bleed[idx].astype(float)
         for j, i in enumerate(idx.tolist()):
             f = start + j
             db = db_all[i]
@@ -285,19 +312,23 @@ class VoiceTracker:
             on_db = max(self._floor + 14.0, min(p.vad_on_db, self._level - 14.0))
             off_db = max(self._floor + 8.0, min(p.vad_off_db, self._level - 22.0))
             # Voice activity with hysteresis: on after two loud frames, off after a hangover.
+            own = own_all[i]
+            self._bleed_run = self._bleed_run + 1 if bleed_all[i] else 0
             if self._vad:
-                self._below = self._below + 1 if db < off_db else 0
-                if self._below > p.vad_hangover:
+                self._below = self._below + 1 if own < off_db else 0
+                # The hangover bridges pauses inside a turn; once the other voice has taken over
+                # this microphone, the turn is over.
+                if self._below > p.vad_hangover or self._bleed_run >= _BLEED_RELEASE:
                     self._vad = False
-            elif db >= on_db and db_all[i + 1] >= off_db:
+            elif own >= on_db and own_all[i + 1] >= off_db:
                 self._vad = True
                 self._below = 0
             o_vad[j] = self._vad
-            voiced = self._vad and periodic[i] and db > off_db
+            voiced = self._vad and periodic[i] and own > off_db
             o_voiced[j] = voiced
             # Loudness in [0, 1] relative to this voice's running level (automatic gain): the level
             # follows periodic frames well above the noise, so quiet voices are found too.
-            if periodic[i] and db > self._floor + 14.0:
+            if periodic[i] and own > self._floor + 14.0:
                 self._level = max(-50.0, self._level + 0.01 * (db - self._level))
             top = self._level + 7.0
             bottom = max(self._floor + 4.0, top - 40.0)

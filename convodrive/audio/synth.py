@@ -4,6 +4,7 @@ A dialogue is a list of turns, each spoken by self (channel 0) or the partner (c
 espeak-ng voice at a rate and pitch; a turn starts at a given time, or a gap after the previous
 turn ends (a negative gap makes the two overlap). The result is a stereo 16-bit WAV, written
 atomically, and the measured start and end of each turn's speech, so tests know the ground truth.
+``add_bleed`` makes each microphone hear the other speaker as in a shared room.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import soundfile as sf
-from scipy.signal import resample_poly
+from scipy.signal import fftconvolve, resample_poly
 
 from convodrive.plumbing.atomic import atomic_path
 from convodrive.plumbing.errors import UserError
@@ -144,3 +145,35 @@ def synthesize_dialogue(
     with atomic_path(path) as tmp:
         sf.write(tmp, np.clip(stereo, -1.0, 1.0), sample_rate, subtype="PCM_16", format="WAV")
     return DialogueInfo(path, sample_rate, total / sample_rate, tuple(timings))
+
+
+def room_response(
+    delay_ms: float = 3.0, rt60: float = 0.25, tail_db: float = -5.0, sample_rate: int = 16000, seed: int = 0
+) -> np.ndarray:
+    """Impulse response from a speaker to the other person's microphone: the direct sound
+    ``delay_ms`` late, then a diffuse tail (seeded noise decaying by 60 dB in ``rt60`` seconds)
+    ``tail_db`` below it in energy. Unit energy overall."""
+    rng = np.random.default_rng(seed)
+    d = int(round(delay_ms * sample_rate / 1000))
+    gap = int(0.0025 * sample_rate)  # the first reflections arrive a few ms after the direct sound
+    t = np.arange(int(rt60 * sample_rate)) / sample_rate
+    tail = rng.standard_normal(len(t)) * np.exp(-6.9 * t / rt60)
+    h = np.zeros(d + gap + len(t))
+    h[d] = 1.0
+    h[d + gap :] += tail * np.sqrt(10 ** (tail_db / 10) / np.sum(tail**2))
+    return h / np.sqrt(np.sum(h**2))
+
+
+def add_bleed(
+    self_voice: np.ndarray, other_voice: np.ndarray, level_db: float = -12.0, delay_ms: float = 3.0, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Both channels as microphones in one room hear them: each also picks up the other speaker
+    ``level_db`` below that speaker's own microphone, through ``room_response``."""
+    gain = 10 ** (level_db / 20)
+    n = len(self_voice)
+    into_self = fftconvolve(other_voice, room_response(delay_ms, seed=seed))[:n]
+    into_other = fftconvolve(self_voice, room_response(delay_ms, seed=seed + 1))[:n]
+    return (
+        np.clip(self_voice + gain * into_self, -1, 1).astype(np.float32),
+        np.clip(other_voice + gain * into_other, -1, 1).astype(np.float32),
+    )

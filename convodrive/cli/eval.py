@@ -7,6 +7,7 @@ import json
 
 from convodrive.audio.source import AudioSource, ChannelMap
 from convodrive.eval.behaviour import behaviour_figures
+from convodrive.eval.segments import load_segments
 from convodrive.motion.npz import load_clip
 from convodrive.plumbing.errors import UserError
 
@@ -17,13 +18,25 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sub.required = True
     b = sub.add_parser(
         "behaviour",
-        help="lip sync, mouth closure, speaking vs listening head motion (JSON)",
-        description="Print behaviour figures of MOTION (a convodrive .npz) against the AUDIO it was made from, as JSON.",
+        help="lip sync, mouth closure, speaking and listening behaviour (JSON)",
+        description=(
+            "Print behaviour figures of MOTION (a convodrive .npz) against the AUDIO it was made from, as JSON: "
+            "lip sync and mouth closure, the clip's voice activity, and head motion, blinks, nods, smiles, posture "
+            "and gaze while speaking and while listening."
+        ),
     )
     b.add_argument("motion", help="motion clip (.npz written by convodrive)")
     b.add_argument("audio", help="the conversation audio (channel 0 self, 1 partner unless --channels)")
     b.add_argument(
         "--channels", default=None, help="SELF,OTHER channel numbers of the audio (e.g. 0,1; OTHER may be -)"
+    )
+    b.add_argument(
+        "--segments",
+        default=None,
+        metavar="FILE",
+        help="who really spoke when: JSON (a list of {start, end, speaker}, or the turns sidecar of "
+        "samples/dialogue.json) or Audacity labels (START<TAB>END<TAB>self|partner); without it, "
+        "speech is found from each channel's level, which hears microphone bleed as speech",
     )
     b.set_defaults(func=run_behaviour)
 
@@ -34,9 +47,14 @@ def run_behaviour(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UserError(str(exc)) from None
     clip = load_clip(args.motion)
-    audio = AudioSource(args.audio, channels).read_all()
+    source = AudioSource(args.audio, channels)
+    audio = source.read_all()
+    reference = None
+    if args.segments:
+        mapping = source.channel_map
+        reference = load_segments(args.segments, mapping.self_channel, mapping.other_channel)
     try:
-        figures = behaviour_figures(clip, audio)
+        figures = behaviour_figures(clip, audio, reference)
     except UserError as exc:
         raise UserError(f"{args.motion}: {exc}") from None
     print(json.dumps({"motion": str(args.motion), "audio": str(args.audio), **figures}, indent=2))

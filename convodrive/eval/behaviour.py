@@ -1,13 +1,21 @@
 """Behaviour figures of a motion clip against its conversation audio (``convodrive eval behaviour``).
 
-Who is talking is measured from the audio itself, independently of the generator: a voice is
-active where its frame RMS is within 30 dB of its loud speech (95th percentile) and 10 dB above
-its noise floor (5th percentile), with gaps under 150 ms bridged, so the stop closures inside
-words do not count as silence but pauses do.
+Who is talking comes from reference speech segments when the user has them (``segments``), and
+otherwise from the audio itself, independently of the generator: a voice is active where its
+frame RMS is within 30 dB of its loud speech (95th percentile) and 10 dB above its noise floor
+(5th percentile), with gaps under 150 ms bridged, so the stop closures inside words do not count
+as silence but pauses do. That detector hears a partner who leaks into self's microphone as self,
+so recordings with bleed need reference segments for honest figures.
+
+*Listening* frames are those where self is silent during the partner's turn: the partner speaks,
+or paused less than a second ago. A *partner pause* starts where the partner's voice stops for at
+least 150 ms (by the audio-level detector, within the reference segments when there are any).
 
 Figures: lip sync (Pearson r of ``jawOpen`` with self's amplitude envelope), how often the mouth is
-closed (``jawOpen`` < 0.05) while self is silent, split by whether the partner talks; mean head
-angular speed while self speaks and while only the partner speaks, and their ratio; blink rates;
+closed (``jawOpen`` < 0.05) while self is silent, split by whether the partner talks; the clip's
+own voice activity against the reference; mean head angular speed while self speaks and while
+listening, and their ratio; blink rates; nods (head pitch dips of at least 2 degrees that come back
+within a second) per minute and their delay after partner pauses; smile share; posture shifts;
 gaze toward the partner; arm motion.
 """
 
@@ -16,17 +24,32 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from scipy.signal import find_peaks
 
 from convodrive.audio.source import DyadicAudio
+from convodrive.eval.segments import Segments
 from convodrive.motion.channels import BLENDSHAPE_INDEX as B
 from convodrive.motion.clip import MotionClip
-from convodrive.motion.rotations import axis_angle_to_matrix
+from convodrive.motion.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from convodrive.motion.skeleton import JOINT_INDEX as J
 from convodrive.motion.skeleton import global_rotation
 from convodrive.plumbing.errors import UserError
 
 JAW_CLOSED = 0.05
 _BRIDGE_FRAMES = 4
+NOD_MIN_DEG = 2.0
+"""A nod: the head pitches down at least this far and back within about a second."""
+NOD_WINDOW_S = 1.0
+PAUSE_NOD_S = 0.6
+"""A listening nod this soon after the start of a partner pause counts as timed to it."""
+TURN_BRIDGE_S = 1.0
+"""Partner pauses shorter than this stay inside the turn: self is still listening."""
+SMILE = 0.2
+"""Mean ``mouthSmile`` from which a frame counts as smiling."""
+GAZE_AT_PARTNER_DEG = 5.0
+POSTURE_WINDOW_S = 1.0
+POSTURE_SHIFT_DEG = 1.0
+"""A posture shift: the lower back's mean orientation moves this far from one second to the next."""
 
 
 def frame_rms(voice: np.ndarray, num_frames: int, fps: float) -> np.ndarray:
@@ -46,12 +69,17 @@ def voice_activity(rms: np.ndarray) -> np.ndarray:
     if loud < -80.0 or loud - floor < 15.0:  # digital silence, or nothing stands out of the noise
         return np.zeros(len(rms), bool)
     threshold = max(loud - 30.0, floor + 10.0)
-    active = db > threshold
+    return bridge(db > threshold, _BRIDGE_FRAMES)
+
+
+def bridge(active: np.ndarray, gap: int) -> np.ndarray:
+    """``active`` with inactive runs of at most ``gap`` frames between active frames filled."""
+    out = active.copy()
     idx = np.flatnonzero(active)
     for a, b in zip(idx[:-1], idx[1:]):
-        if 1 < b - a <= _BRIDGE_FRAMES + 1:
-            active[a:b] = True
-    return active
+        if 1 < b - a <= gap + 1:
+            out[a:b] = True
+    return out
 
 
 def envelope(rms: np.ndarray) -> np.ndarray:
@@ -67,6 +95,42 @@ def head_angular_speed(clip: MotionClip) -> np.ndarray:
     return np.degrees(np.concatenate([[0.0], np.arccos(cos)])) * clip.fps
 
 
+def head_pitch(clip: MotionClip) -> np.ndarray:
+    """(T,) how far the head looks down, degrees (its forward axis below the horizontal)."""
+    glob = global_rotation(axis_angle_to_matrix(clip.pose), J["head"])
+    forward = glob[:, :, 2]  # the canonical body faces +Z
+    return np.degrees(np.arcsin(np.clip(-forward[:, 1], -1.0, 1.0)))
+
+
+def nod_frames(clip: MotionClip) -> np.ndarray:
+    """Frames where a nod is deepest: head pitch peaks that stand ``NOD_MIN_DEG`` out of the
+    surrounding second, so slow posture changes and breathing do not count."""
+    window = int(round(NOD_WINDOW_S * clip.fps)) | 1
+    peaks, _ = find_peaks(head_pitch(clip), prominence=NOD_MIN_DEG, wlen=window)
+    return peaks
+
+
+def pause_starts(partner_on: np.ndarray) -> np.ndarray:
+    """First frames of the partner's silences (after bridging, each lasts at least 150 ms)."""
+    return np.flatnonzero(~partner_on[1:] & partner_on[:-1]) + 1
+
+
+def posture_shifts(clip: MotionClip) -> np.ndarray:
+    """Frames where the lower back's orientation, averaged over one-second windows, moves at least
+    ``POSTURE_SHIFT_DEG`` from one window to the next (one event per move, at its largest step).
+    The lower back (``spine1``) shifts with the posture but hardly breathes, unlike the chest."""
+    glob = global_rotation(axis_angle_to_matrix(clip.pose), J["spine1"])
+    rotvec = np.degrees(matrix_to_axis_angle(glob))
+    n = int(round(POSTURE_WINDOW_S * clip.fps))
+    count = len(rotvec) // n
+    if count < 2:
+        return np.zeros(0, int)
+    means = rotvec[: count * n].reshape(count, n, 3).mean(axis=1)
+    steps = np.concatenate([[0.0], np.linalg.norm(np.diff(means, axis=0), axis=1), [0.0]])
+    peaks, _ = find_peaks(steps, height=POSTURE_SHIFT_DEG, distance=2)
+    return (peaks * n).astype(int)
+
+
 def _mean(x: np.ndarray, mask: np.ndarray) -> float | None:
     return float(x[mask].mean()) if mask.any() else None
 
@@ -77,8 +141,9 @@ def _pearson(a: np.ndarray, b: np.ndarray) -> float | None:
     return float(np.corrcoef(a, b)[0, 1])
 
 
-def behaviour_figures(clip: MotionClip, audio: DyadicAudio) -> dict[str, Any]:
-    """The figures as a JSON-ready dict. Raises UserError if clip and audio lengths disagree."""
+def behaviour_figures(clip: MotionClip, audio: DyadicAudio, reference: Segments | None = None) -> dict[str, Any]:
+    """The figures as a JSON-ready dict. ``reference``: who really spoke when, if known.
+    Raises UserError if clip and audio lengths disagree."""
     expected = int(round(audio.duration * clip.fps))
     if abs(expected - clip.num_frames) > 1:
         raise UserError(
@@ -86,17 +151,25 @@ def behaviour_figures(clip: MotionClip, audio: DyadicAudio) -> dict[str, Any]:
             f"({expected} frames at {clip.fps:g} fps); they must belong together"
         )
     t = clip.num_frames
-    rms_self, rms_other = frame_rms(audio.self_voice, t, clip.fps), frame_rms(audio.other_voice, t, clip.fps)
-    self_on, other_on = voice_activity(rms_self), voice_activity(rms_other)
+    fps = clip.fps
+    rms_self, rms_other = frame_rms(audio.self_voice, t, fps), frame_rms(audio.other_voice, t, fps)
+    heard_self, heard_other = voice_activity(rms_self), voice_activity(rms_other)
+    if reference is not None:
+        self_on, other_on = reference.masks(t, fps)
+        partner_sounding = other_on & heard_other
+    else:
+        self_on, other_on = heard_self, heard_other
+        partner_sounding = heard_other
     env = envelope(rms_self)
     jaw = clip.face[:, B["jawOpen"]].astype(np.float64)
     silent = ~self_on
     closed = jaw < JAW_CLOSED
     speed = head_angular_speed(clip)
     only_partner = other_on & ~self_on
+    listening = _partner_turn(other_on, fps) & ~self_on
     speaking_speed = _mean(speed, self_on)
-    listening_speed = _mean(speed, only_partner)
-    minutes = lambda m: m.sum() / clip.fps / 60.0  # noqa: E731
+    listening_speed = _mean(speed, listening)
+    minutes = lambda m: m.sum() / fps / 60.0  # noqa: E731
     blink = clip.face[:, B["eyeBlinkLeft"]]
     blink_onsets = (blink[1:] >= 0.5) & (blink[:-1] < 0.5)
     blink_onsets = np.concatenate([[False], blink_onsets])
@@ -105,25 +178,55 @@ def behaviour_figures(clip: MotionClip, audio: DyadicAudio) -> dict[str, Any]:
         J[n] for n in ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist")
     ]
     arm_speed = np.concatenate(
-        [[0.0], np.degrees(np.linalg.norm(np.diff(clip.pose[:, arm_joints], axis=0), axis=2).mean(axis=1)) * clip.fps]
+        [[0.0], np.degrees(np.linalg.norm(np.diff(clip.pose[:, arm_joints], axis=0), axis=2).mean(axis=1)) * fps]
     )
+    smiling = clip.face[:, [B["mouthSmileLeft"], B["mouthSmileRight"]]].mean(axis=1) >= SMILE
+    vad_self, vad_other = clip.vad[:, 0] > 0, clip.vad[:, 1] > 0
+
+    def per_minute(events: np.ndarray, mask: np.ndarray) -> float | None:
+        return round(float(events[mask].sum() / minutes(mask)), 2) if minutes(mask) > 0 else None
 
     def rate(mask: np.ndarray) -> float | None:
-        return round(float(blink_onsets[mask].sum() / minutes(mask)), 2) if minutes(mask) > 0 else None
+        return per_minute(blink_onsets, mask)
 
     def rnd(x: float | None, nd: int = 4) -> float | None:
         return None if x is None else round(x, nd)
 
+    def share(flags: np.ndarray, mask: np.ndarray) -> float | None:
+        return rnd(_mean(flags.astype(float), mask))
+
+    nods = np.zeros(t, bool)
+    nods[nod_frames(clip)] = True
+    pauses = pause_starts(partner_sounding)
+    listening_pauses = pauses[listening[pauses]]
+    listening_nods = np.flatnonzero(nods & listening)
+    delays = [_delay_after(k, pauses) for k in listening_nods]
+    known = [d / fps for d in delays if d is not None]
+    timed = [d for d in known if d <= PAUSE_NOD_S]
+    answered = [
+        p for p in listening_pauses if np.any((listening_nods >= p) & (listening_nods <= p + PAUSE_NOD_S * fps))
+    ]
+    shifts = np.zeros(t, bool)
+    shifts[posture_shifts(clip)] = True
+    everything = np.ones(t, bool)
+
     ratio = speaking_speed / listening_speed if speaking_speed is not None and listening_speed else None
     return {
         "frames": t,
-        "fps": clip.fps,
+        "fps": fps,
         "duration_s": round(clip.duration, 3),
         "activity": {
+            "source": f"reference segments {reference.source}" if reference is not None else "audio levels",
             "self_speaking_frames": int(self_on.sum()),
             "only_partner_frames": int(only_partner.sum()),
+            "listening_frames": int(listening.sum()),
             "overlap_frames": int((self_on & other_on).sum()),
             "both_silent_frames": int((~self_on & ~other_on).sum()),
+        },
+        "voice_activity": {
+            "self_on_when_only_partner_speaks": share(vad_self, only_partner),
+            "self_on_when_self_speaks": share(vad_self, self_on),
+            "partner_on_when_only_self_speaks": share(vad_other, self_on & ~other_on),
         },
         "lip_sync": {
             "pearson_jaw_vs_self_envelope": rnd(_pearson(jaw, env)),
@@ -135,20 +238,59 @@ def behaviour_figures(clip: MotionClip, audio: DyadicAudio) -> dict[str, Any]:
         },
         "head": {
             "mean_angular_speed_self_speaking_deg_s": rnd(speaking_speed, 3),
-            "mean_angular_speed_only_partner_deg_s": rnd(listening_speed, 3),
+            "mean_angular_speed_listening_deg_s": rnd(listening_speed, 3),
+            "mean_angular_speed_only_partner_deg_s": rnd(_mean(speed, only_partner), 3),
             "speaking_to_listening_ratio": rnd(ratio, 3),
         },
         "blinks_per_minute": {
             "self_speaking": rate(self_on),
+            "listening": rate(listening),
             "only_partner": rate(only_partner),
             "both_silent": rate(~self_on & ~other_on),
         },
+        "nods": {
+            "per_minute_self_speaking": per_minute(nods, self_on),
+            "per_minute_listening": per_minute(nods, listening),
+            "listening_nods": len(listening_nods),
+            "listening_share_within_600ms_after_partner_pause": rnd(len(timed) / len(delays)) if delays else None,
+            "median_delay_after_partner_pause_s": rnd(float(np.median(known)), 3) if known else None,
+            "partner_pauses_while_listening": len(listening_pauses),
+            "partner_pauses_answered_by_nod": rnd(len(answered) / len(listening_pauses))
+            if len(listening_pauses)
+            else None,
+        },
+        "smiles": {
+            "share_self_speaking": share(smiling, self_on),
+            "share_listening": share(smiling, listening),
+        },
+        "posture": {
+            "shifts_per_minute": per_minute(shifts, everything),
+            "shifts_per_minute_listening": per_minute(shifts, listening),
+        },
         "gaze": {
             "mean_eye_angle_self_speaking_deg": rnd(_mean(gaze, self_on), 3),
+            "mean_eye_angle_listening_deg": rnd(_mean(gaze, listening), 3),
             "mean_eye_angle_only_partner_deg": rnd(_mean(gaze, only_partner), 3),
+            "at_partner_share_self_speaking": share(gaze < GAZE_AT_PARTNER_DEG, self_on),
+            "at_partner_share_listening": share(gaze < GAZE_AT_PARTNER_DEG, listening),
         },
         "arms": {
             "mean_speed_self_speaking_deg_s": rnd(_mean(arm_speed, self_on), 3),
+            "mean_speed_listening_deg_s": rnd(_mean(arm_speed, listening), 3),
             "mean_speed_only_partner_deg_s": rnd(_mean(arm_speed, only_partner), 3),
         },
     }
+
+
+def _partner_turn(other_on: np.ndarray, fps: float) -> np.ndarray:
+    """The partner's turn: the frames at most ``TURN_BRIDGE_S`` after the partner's voice, so its
+    short pauses stay inside, and so does the second after it ends (where a listener's response
+    to the end of the turn falls)."""
+    span = int(round(TURN_BRIDGE_S * fps)) + 1
+    return np.convolve(other_on.astype(float), np.ones(span), mode="full")[: len(other_on)] > 0.5
+
+
+def _delay_after(frame: int, pauses: np.ndarray) -> int | None:
+    """Frames from the latest partner pause start at or before ``frame`` (None if there is none)."""
+    before = pauses[pauses <= frame]
+    return int(frame - before[-1]) if len(before) else None

@@ -10,13 +10,20 @@ from convodrive.audio.source import DyadicAudio
 from convodrive.eval.behaviour import behaviour_figures
 from convodrive.generators.procedural import ProceduralGenerator
 from convodrive.motion.channels import BLENDSHAPE_INDEX as B
-from tests.procedural_dialogues import make
+from tests.procedural_dialogues import make, reference, with_bleed
+
+NAMES = ("alternating", "self_monologue", "partner_monologue", "overlap", "story")
 
 
 @pytest.fixture(scope="module")
-def dialogues(tmp_path_factory):
+def made(tmp_path_factory):
     d = tmp_path_factory.mktemp("dialogues")
-    return {name: make(name, d)[1] for name in ("alternating", "self_monologue", "partner_monologue", "overlap")}
+    return {name: make(name, d) for name in NAMES}
+
+
+@pytest.fixture(scope="module")
+def dialogues(made):
+    return {name: audio for name, (_, audio) in made.items()}
 
 
 @pytest.fixture(scope="module")
@@ -123,3 +130,16 @@ def test_blinks_more_while_speaking_than_listening_and_at_turn_starts(dialogues)
                 starts += 1
                 hits += bool(lids[k : k + 10].max() > 0.5)
     assert starts >= 24 and hits >= 0.6 * starts
+
+
+@pytest.mark.parametrize("name", ["alternating", "partner_monologue", "overlap", "story"])
+def test_partner_bleeding_into_self_at_minus_12_db_leaves_the_mouth_shut(made, name):
+    """Graded against the dialogue's own turns, not a level detector that the bleed fools too."""
+    path, audio = made[name]
+    bled = with_bleed(audio, -12.0)
+    f = behaviour_figures(ProceduralGenerator().generate(bled, seed=3)[0], bled, reference(path))
+    assert f["voice_activity"]["self_on_when_only_partner_speaks"] <= 0.05
+    assert f["lip_sync"]["jaw_closed_when_only_partner_speaks"] >= 0.95
+    if name != "partner_monologue":
+        assert f["voice_activity"]["self_on_when_self_speaks"] >= 0.9
+        assert f["lip_sync"]["pearson_jaw_vs_self_envelope"] >= 0.6

@@ -96,7 +96,8 @@ class FaceSynth:
         vad_self = s["vad"]
         # Mouth: loudness sets the opening, the coarticulated viseme the shape.
         vis = self.coart(visemes)
-        drive = np.clip((s["env"] - 0.22) / 0.55, 0.0, 1.0) * vad_self
+        # A frame whose sound is only the partner's voice in self's microphone moves no lips.
+        drive = np.clip((s["env"] - 0.22) / 0.55, 0.0, 1.0) * vad_self * (1.0 - s["bleed"])
         drive = self.jaw(drive)
         jaw_factor = 0.5 + 0.5 * (vis @ VISEME_JAW)
         jaw_open = np.clip(0.8 * drive * jaw_factor, 0.0, 1.0)
