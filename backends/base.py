@@ -4,17 +4,22 @@ The scheduler opens each backend with its target spec and the session, then call
 per frame from that backend's own worker thread, and ``close`` exactly once at the end, also after
 an error or Ctrl-C. ``close`` must leave every output complete (files renamed into place, servos
 eased to neutral with torque off). ``health`` may be called from another thread at any time.
+A backend declares its options once, as the dataclass named by its ``Options`` attribute
+(``convodrive.plugins.options``); the constructor parses whatever it is given into that, so
+``self.options`` is always typed and checked.
 """
 
 from __future__ import annotations
 
 import abc
 import dataclasses
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
 from convodrive import FPS
 from convodrive.motion.targets import TargetFrame, TargetSpec
+from convodrive.plugins.options import PluginOptions, coerce_options, option
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,6 +39,17 @@ class Session:
     num_samples: int = 1
 
 
+@dataclasses.dataclass(frozen=True)
+class RobotOptions(PluginOptions):
+    """Options every backend that drives a robot profile takes (read by the pipeline)."""
+
+    profile: str | None = option(
+        None,
+        help="Robot profile to drive (a YAML path or a bundled name); default: the run config when it "
+        "is a profile, else the backend's own",
+    )
+
+
 class Backend(abc.ABC):
     """A body that consumes target frames. Subclasses set the class attributes below."""
 
@@ -47,9 +63,12 @@ class Backend(abc.ABC):
     """Modules the backend imports only when it opens; a missing one makes the plugin unavailable."""
     extra: ClassVar[str] = ""
     """The pip extra of convodrive that installs ``requires``, for the error message."""
+    Options: ClassVar[type[PluginOptions]] = PluginOptions
+    """The dataclass of this backend's options (the base class: none). A backend with a
+    ``default_profile`` derives it from ``RobotOptions``."""
 
-    def __init__(self, options: dict[str, Any] | None = None) -> None:
-        self.options: dict[str, Any] = dict(options or {})
+    def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
+        self.options = coerce_options(self.Options, options, plugin=f"backend {self.name}")
         self.spec: TargetSpec = TargetSpec.empty()
         self.session: Session | None = None
 

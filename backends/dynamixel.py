@@ -6,22 +6,22 @@ status packets raise the alert bit. A servo that stops answering is retried with
 re-initialised (limits, profile, torque) when it answers again. The safety loop itself (limits,
 watchdog, ease to neutral, torque off) is ``servo_base.ServoBackend``.
 
-Options (``backends.dynamixel`` in the robot profile)::
+Options: ``DynamixelOptions`` below (``convodrive plugins dynamixel`` lists them), usually in the
+robot profile's ``backends.dynamixel``, one ``joints`` entry per servo::
 
-    port: /dev/ttyUSB0       baudrate: 1000000    protocol: 2     model: xl330
-    read_rate: 10            retries: 2           latency_ms: 16  watchdog_s: 0.5   ease_s: 1.0
-    return_delay_us: 0       profile_velocity: 0      profile_acceleration: 0   (raw units, defaults)
     joints:
       neck_pan: {id: 1, zero_tick: 2048, direction: 1, min_tick: 1135, max_tick: 2961,
-                 profile_velocity: 150, profile_acceleration: 80, ticks_per_unit: null, model: null}
+                 profile_velocity: 150, profile_acceleration: 80}
 
 ``ticks_per_unit`` defaults to ticks per radian; joints missing from ``joints`` are not driven;
-without ``joints`` the spec's joints take ids 1..N with the model's centre tick as zero.
+without ``joints`` the spec's joints take ids 1..N with the model's centre tick as zero. The servo
+tools (``convodrive servo``) read the same declaration, so their flags and the backend agree.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -30,10 +30,34 @@ from convodrive.backends.servo import dynamixel_table as dt
 from convodrive.backends.servo.dynamixel_bus import DynamixelBus, Motor
 from convodrive.backends.servo.safety import RawMap
 from convodrive.backends.servo.servo_base import PortLost, ServoBackend
+from convodrive.backends.servo.servo_options import DynamixelJoint, DynamixelOptions
 from convodrive.motion.targets import TargetSpec
+from convodrive.plugins.options import PluginOptions
 from convodrive.plumbing.errors import UserError
 
 HEALTH_REGISTERS = ["Present_Position", "Present_Input_Voltage", "Present_Temperature"]
+
+
+def bus_motors(options: DynamixelOptions, names: list[str] | None = None) -> list[Motor]:
+    """The servos of ``options.joints`` (only ``names`` when given), each with its model."""
+    default = dt.model(options.model)
+    joints = options.joints or {}
+    return [
+        Motor(name, j.id, dt.model(j.model) if j.model else default)
+        for name, j in joints.items()
+        if names is None or name in names
+    ]
+
+
+def make_bus(options: DynamixelOptions, motors: list[Motor], port: str | None = None) -> DynamixelBus:
+    """A bus (not yet connected) for ``motors`` at the options' speed and timing."""
+    return DynamixelBus(
+        port or options.port,
+        motors,
+        baudrate=options.baudrate,
+        retries=options.retries,
+        latency_ms=options.latency_ms,
+    )
 
 
 class DynamixelBackend(ServoBackend):
@@ -43,38 +67,33 @@ class DynamixelBackend(ServoBackend):
     default_profile = "servo_head"
     requires = ("dynamixel_sdk",)
     extra = "hardware"
+    Options = DynamixelOptions
+    options: DynamixelOptions
 
-    def __init__(self, options: dict[str, Any] | None = None) -> None:
+    def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
         super().__init__(options)
         self.bus: DynamixelBus | None = None
         self._motors: list[Motor] = []
         self._profile: dict[str, tuple[int, int]] = {}
         self._limits: dict[str, tuple[int, int]] = {}
         # Factory Return_Delay_Time is 250 (500 us per status packet); 0 keeps a 7-servo read short.
-        self._return_delay = int(self.options.get("return_delay_us", 0)) // 2
+        self._return_delay = self.options.return_delay_us // 2
 
     # ---------------------------------------------------------------- calibration
     def _hw_calibration(self, spec: TargetSpec) -> RawMap:
-        opts = self.options
-        if int(opts.get("protocol", 2)) != 2:
-            raise UserError("backends.dynamixel.protocol: only Protocol 2.0 is supported")
-        default_model = dt.model(str(opts.get("model", "xl330")))
-        joints = opts.get("joints")
+        joints = self.options.joints
         if joints is None:
-            joints = {name: {"id": i + 1} for i, name in enumerate(spec.names)}
-        if not isinstance(joints, dict):
-            raise UserError("backends.dynamixel.joints: expected a mapping of joint name to servo settings")
+            joints = {name: DynamixelJoint(id=i + 1) for i, name in enumerate(spec.names)}
         unknown = sorted(set(joints) - set(spec.names))
         if unknown:
             raise UserError(
                 f"backends.dynamixel.joints: {', '.join(unknown)} not in profile {spec.name} "
                 f"(joints: {', '.join(spec.names)})"
             )
+        default_model = dt.model(self.options.model)
         zero, scale, low, high = [], [], [], []
         for name in (n for n in spec.names if n in joints):
-            motor, z, s, lo, hi = self._joint(spec, name, joints[name] or {}, default_model)
-            if motor.id in {m.id for m in self._motors}:
-                raise UserError(f"backends.dynamixel.joints.{name}.id: servo id {motor.id} is used twice")
+            motor, z, s, lo, hi = self._joint(spec, name, joints[name], default_model)
             self._motors.append(motor)
             zero.append(z), scale.append(s), low.append(lo), high.append(hi)
         if not self._motors:
@@ -83,52 +102,39 @@ class DynamixelBackend(ServoBackend):
         return RawMap(np.array(zero), np.array(scale), np.array(low, float), np.array(high, float))
 
     def _joint(
-        self, spec: TargetSpec, name: str, j: dict[str, Any], default: dt.Model
+        self, spec: TargetSpec, name: str, j: DynamixelJoint, default: dt.Model
     ) -> tuple[Motor, float, float, int, int]:
+        """Raw map of one joint; the options are typed and ranged, so only what depends on the
+        servo's model and the profile's limits is checked here."""
         key = f"backends.dynamixel.joints.{name}"
         i = spec.index[name]
-        try:
-            model = dt.model(str(j["model"])) if j.get("model") else default
-            table = model.table
-            servo_id = int(j["id"])
-            direction = int(j.get("direction", 1))
-            per_unit = j.get("ticks_per_unit")
-            if per_unit is None and spec.units[i] != "rad":
-                raise UserError(f"{key}: joint is in {spec.units[i]}, give ticks_per_unit")
-            s = math.copysign(float(per_unit or 1.0 / table.rad_per_tick), direction)
-            z = float(j.get("zero_tick", table.center_tick))
-            ends = sorted((z + s * spec.lower[i], z + s * spec.upper[i]))
-            lo = int(j.get("min_tick", max(0, math.floor(ends[0]))))
-            hi = int(j.get("max_tick", min(table.max_tick, math.ceil(ends[1]))))
-            self._profile[name] = (
-                int(j.get("profile_velocity", self.options.get("profile_velocity", 0))),
-                int(j.get("profile_acceleration", self.options.get("profile_acceleration", 0))),
-            )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise UserError(f"{key}: bad servo settings ({type(exc).__name__}: {exc})") from None
-        if not 0 <= servo_id <= 252:
-            raise UserError(f"{key}.id: {servo_id} is not a servo id (0..252)")
-        if direction not in (1, -1) or not 0 <= lo <= hi <= table.max_tick:
-            raise UserError(f"{key}: need direction 1 or -1 and 0 <= min_tick <= max_tick <= {table.max_tick}")
+        model = dt.model(j.model) if j.model else default
+        table = model.table
+        if j.ticks_per_unit is None and spec.units[i] != "rad":
+            raise UserError(f"{key}: joint is in {spec.units[i]}, give ticks_per_unit")
+        s = math.copysign(j.ticks_per_unit or 1.0 / table.rad_per_tick, j.direction)
+        z = table.center_tick if j.zero_tick is None else j.zero_tick
+        ends = sorted((z + s * spec.lower[i], z + s * spec.upper[i]))
+        lo = max(0, math.floor(ends[0])) if j.min_tick is None else j.min_tick
+        hi = min(table.max_tick, math.ceil(ends[1])) if j.max_tick is None else j.max_tick
+        if not 0 <= lo <= hi <= table.max_tick:
+            raise UserError(f"{key}: need 0 <= min_tick <= max_tick <= {table.max_tick} ({model.name})")
+        self._profile[name] = (
+            self.options.profile_velocity if j.profile_velocity is None else j.profile_velocity,
+            self.options.profile_acceleration if j.profile_acceleration is None else j.profile_acceleration,
+        )
         self._limits[name] = (lo, hi)
-        return Motor(name, servo_id, model), z, s, lo, hi
+        return Motor(name, j.id, model), z, s, lo, hi
 
     # ---------------------------------------------------------------- bus
     def _hw_open(self) -> None:
-        opts = self.options
-        self.bus = DynamixelBus(
-            str(opts["port"]),
-            self._motors,
-            baudrate=int(opts.get("baudrate", 1_000_000)),
-            retries=int(opts.get("retries", 2)),
-            latency_ms=float(opts.get("latency_ms", 16.0)),
-        )
+        self.bus = make_bus(self.options, self._motors)
         self.bus.connect()
         answering = [m.name for m in self._motors if self._check_model(m)]
         if not answering:
             self.bus.disconnect()
             ids = ", ".join(str(m.id) for m in self._motors)
-            raise UserError(f"{opts['port']}: no servo answers (ids {ids} at {self.bus.baudrate} baud)")
+            raise UserError(f"{self.options.port}: no servo answers (ids {ids} at {self.bus.baudrate} baud)")
         for name in self.names:
             if name not in answering:
                 self._event("servo_lost", name, "no answer at open")

@@ -5,13 +5,11 @@ asks for the controller's error bits and every channel's position in one write. 
 report nothing back, so "torque off" is a target of 0, which stops the pulses. The safety loop
 (limits, watchdog, ease to neutral) is ``servo_base.ServoBackend``.
 
-Options (``backends.maestro`` in the robot profile)::
+Options: ``MaestroOptions`` below (``convodrive plugins maestro`` lists them), usually in the
+robot profile's ``backends.maestro``, one ``joints`` entry per channel::
 
-    port: /dev/ttyACM0   baudrate: 115200   device: null (compact protocol; a number = Pololu protocol)
-    timeout_s: 0.05      read_rate: 5       watchdog_s: 0.5   ease_s: 1.0
     joints:
-      neck_pan: {channel: 0, zero_us: 1500, us_per_unit: 600, min_us: 650, max_us: 2350,
-                 speed: 0, acceleration: 0}
+      neck_pan: {channel: 0, zero_us: 1500, us_per_unit: 600, min_us: 650, max_us: 2350}
 
 Pulse width = ``zero_us + us_per_unit * value``, kept inside ``[min_us, max_us]``; a negative
 ``us_per_unit`` reverses the servo.
@@ -21,6 +19,7 @@ from __future__ import annotations
 
 import termios
 import time
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -29,11 +28,12 @@ import serial
 from convodrive.backends.servo import maestro_protocol as mp
 from convodrive.backends.servo.safety import RawMap
 from convodrive.backends.servo.servo_base import PortLost, ServoBackend, open_error
+from convodrive.backends.servo.servo_options import MaestroJoint, MaestroOptions
 from convodrive.motion.targets import TargetSpec
+from convodrive.plugins.options import PluginOptions
 from convodrive.plumbing.errors import UserError
 
 SERIAL_ERRORS = (serial.SerialException, OSError, termios.error, TypeError)
-MIN_US, MAX_US = 64.0, 4000.0
 
 
 class MaestroBackend(ServoBackend):
@@ -43,13 +43,15 @@ class MaestroBackend(ServoBackend):
     default_profile = "servo_head"
     requires = ("serial",)
     extra = "hardware"
+    Options = MaestroOptions
+    options: MaestroOptions
 
-    def __init__(self, options: dict[str, Any] | None = None) -> None:
+    def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
         super().__init__(options)
         self.serial: serial.Serial | None = None
         self.channels: list[int] = []
         self._limits: dict[str, tuple[int, int]] = {}
-        self._device = self.options.get("device")
+        self._device = self.options.device
         self._status: dict[str, dict[str, Any]] = {}
         self._controller_errors: list[str] = []
         self._last_seen: float | None = None
@@ -57,34 +59,19 @@ class MaestroBackend(ServoBackend):
 
     # ---------------------------------------------------------------- calibration
     def _hw_calibration(self, spec: TargetSpec) -> RawMap:
-        joints = self.options.get("joints")
+        joints = self.options.joints
         if joints is None:
-            joints = {name: {"channel": i} for i, name in enumerate(spec.names)}
-        if not isinstance(joints, dict):
-            raise UserError("backends.maestro.joints: expected a mapping of joint name to channel settings")
+            joints = {name: MaestroJoint(channel=i) for i, name in enumerate(spec.names)}
         unknown = sorted(set(joints) - set(spec.names))
         if unknown:
             raise UserError(f"backends.maestro.joints: {', '.join(unknown)} not in profile {spec.name}")
         zero, scale, low, high = [], [], [], []
         for name in (n for n in spec.names if n in joints):
-            key = f"backends.maestro.joints.{name}"
-            j = joints[name] or {}
-            try:
-                channel = int(j["channel"])
-                z, s = float(j.get("zero_us", 1500.0)), float(j.get("us_per_unit", 600.0))
-                lo, hi = float(j.get("min_us", 1000.0)), float(j.get("max_us", 2000.0))
-                speed, accel = int(j.get("speed", 0)), int(j.get("acceleration", 0))
-            except (KeyError, TypeError, ValueError) as exc:
-                raise UserError(f"{key}: bad channel settings ({type(exc).__name__}: {exc})") from None
-            if not 0 <= channel <= 23 or channel in self.channels:
-                raise UserError(f"{key}.channel: {channel} is not a free channel 0..23")
-            if s == 0 or not MIN_US <= lo <= hi <= MAX_US:
-                raise UserError(f"{key}: need us_per_unit != 0 and {MIN_US:g} <= min_us <= max_us <= {MAX_US:g}")
-            if not (0 <= speed < 1 << 14 and 0 <= accel <= 255):
-                raise UserError(f"{key}: speed 0..16383 and acceleration 0..255")
-            self.channels.append(channel)
-            self._limits[name] = (speed, accel)
-            zero.append(4 * z), scale.append(4 * s), low.append(np.ceil(4 * lo)), high.append(np.floor(4 * hi))
+            j = joints[name]
+            self.channels.append(j.channel)
+            self._limits[name] = (j.speed, j.acceleration)
+            zero.append(4 * j.zero_us), scale.append(4 * j.us_per_unit)
+            low.append(np.ceil(4 * j.min_us)), high.append(np.floor(4 * j.max_us))
         if not self.channels:
             raise UserError("backends.maestro.joints: no joint is mapped to a channel")
         self.names = [n for n in spec.names if n in joints]
@@ -97,7 +84,7 @@ class MaestroBackend(ServoBackend):
     def _io(self, request: bytes, reply_len: int = 0) -> bytes:
         """Write a request and read exactly ``reply_len`` bytes (fewer on timeout)."""
         if self.serial is None:
-            raise PortLost(f"{self.options['port']}: not connected")
+            raise PortLost(f"{self.options.port}: not connected")
         try:
             if reply_len:
                 self.serial.reset_input_buffer()
@@ -105,7 +92,7 @@ class MaestroBackend(ServoBackend):
             return self.serial.read(reply_len) if reply_len else b""
         except SERIAL_ERRORS as exc:
             self._drop_port()
-            raise PortLost(f"{self.options['port']}: {exc}") from None
+            raise PortLost(f"{self.options.port}: {exc}") from None
 
     def _drop_port(self) -> None:
         if self.serial is not None:
@@ -117,14 +104,9 @@ class MaestroBackend(ServoBackend):
 
     def _connect(self) -> bool:
         """Open the port and check the controller answers; False if it does not."""
-        port = str(self.options["port"])
+        port = self.options.port
         try:
-            self.serial = serial.Serial(
-                port,
-                int(self.options.get("baudrate", 115200)),
-                timeout=float(self.options.get("timeout_s", 0.05)),
-                write_timeout=0.5,
-            )
+            self.serial = serial.Serial(port, self.options.baudrate, timeout=self.options.timeout_s, write_timeout=0.5)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise open_error(port, exc) from None
         if len(self._io(self._cmd(mp.get_errors()), 2)) != 2:
@@ -139,7 +121,20 @@ class MaestroBackend(ServoBackend):
 
     def _hw_open(self) -> None:
         if not self._connect():
-            raise UserError(f"{self.options['port']}: no Maestro answers (no reply to get-errors)")
+            raise UserError(f"{self.options.port}: no Maestro answers (no reply to get-errors)")
+        self._check_channels()
+
+    def _check_channels(self) -> None:
+        """Ask each mapped channel for its position: a channel this Maestro lacks never answers
+        (and raises the serial-protocol error bit), which must stop the run, not a servo."""
+        for name, channel in zip(self.names, self.channels):
+            if not any(len(self._io(self._cmd(mp.get_position(channel)), 2)) == 2 for _ in range(3)):
+                self._drop_port()
+                raise UserError(
+                    f"backends.maestro.joints.{name}.channel: the Maestro on {self.options.port} does not answer "
+                    f"for channel {channel} (does it have that many channels?)"
+                )
+        self._io(self._cmd(mp.get_errors()), 2)  # clear the error bits the probe may have raised
 
     def _positions(self) -> np.ndarray:
         """Positions in quarter-microseconds (NaN where the channel is off or did not answer)."""

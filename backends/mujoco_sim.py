@@ -11,33 +11,26 @@ inertia so that every joint tracks at about the same natural frequency. Renderin
 equipment: if no headless GL works, or the renderer fails mid-run, physics and the tracking
 report carry on and the report says why there is no video.
 
-Options (``backends: {mujoco: {...}}`` in the run config):
-  model      MJCF path or a name in convodrive.sims; the pipeline sets it from the profile's
-             ``model`` (default: the bundled model named like the target)
-  profile    (read by the pipeline, not here) the robot profile this backend is driven with
-  video      write ``<out_dir>/mujoco.mp4`` (default true)
-  width, height   video size (default 640x480); camera: a camera name, or "free" for
-             one framing the model from the front (default "front", else the model's first camera)
-  msaa       multisample anti-aliasing samples (default 0; 4 is smoother and ~2.5x slower on CPU GL)
-  shadows    render shadows and reflections (default false: ten times slower on software GL)
-  viewer     open a passive viewer when a display exists (default false)
-  weld_root  remove free joints (default true); gravcomp: compensate gravity on all bodies (default false)
-  omega      natural frequency, rad/s, of actuators the backend adds (default 60)
-  hold_unmapped   add actuators holding unmapped hinge joints at their rest angle (default true)
+Options: ``MujocoOptions`` below (``convodrive plugins mujoco`` lists them). The MJCF is the
+option ``model``, else the robot profile's ``model`` (carried by the target spec), else the
+bundled model named like the target.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from convodrive.backends.base import Backend, Session
+from convodrive.backends.base import Backend, RobotOptions, Session
 from convodrive.motion.targets import TargetFrame, TargetSpec
+from convodrive.plugins.options import PluginOptions, option
 from convodrive.plumbing.errors import InputFileError, UserError
 
 NECK_HEAD = ("neck", "head")
@@ -48,26 +41,55 @@ def _one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text[:300]}"
 
 
-def _resolve_model(options: dict[str, Any], spec: TargetSpec) -> Path:
+def _resolve_model(model: str | None, spec: TargetSpec) -> Path:
     """The MJCF to load: option ``model`` (a path, or a file name in convodrive.sims), else the
-    bundled model named like the target (``servo_head`` -> sims/servo_head.xml). The pipeline sets
-    ``model`` from the robot profile, so a backend never needs to read profiles itself."""
+    profile's model (``spec.model``), else the bundled model named like the target
+    (``servo_head`` -> sims/servo_head.xml). A backend never reads profiles itself."""
     import importlib.resources
 
     def bundled(name: str) -> Path:
         return Path(str(importlib.resources.files("convodrive.sims").joinpath(name)))
 
-    model = options.get("model")
     if model:
         path = Path(str(model)).expanduser()
         if path.is_file():
             return path
         if bundled(str(model)).is_file():
             return bundled(str(model))
-        raise UserError(f"mujoco backend option model: {model!r} is neither a file nor a model in convodrive.sims")
+        raise UserError(f"backend mujoco: option 'model': {model!r} is neither a file nor a model in convodrive.sims")
+    if spec.model is not None:
+        return spec.model
     if spec.name and bundled(f"{spec.name}.xml").is_file():
         return bundled(f"{spec.name}.xml")
     raise UserError(f"mujoco backend: no MJCF for target {spec.name!r}; give the option model: PATH")
+
+
+@dataclasses.dataclass(frozen=True)
+class MujocoOptions(RobotOptions):
+    model: str | None = option(
+        None, help="MJCF path or a file name in convodrive.sims; default: the robot profile's model"
+    )
+    video: bool = option(True, help="Film the model offscreen into mujoco.mp4 with the audio")
+    width: int = option(640, low=16, high=4096, help="Video width in pixels (even)")
+    height: int = option(480, low=16, high=4096, help="Video height in pixels (even)")
+    camera: str | None = option(
+        None, help='A camera of the model, or "free" for one framing it from the front; default "front", else the first'
+    )
+    msaa: int = option(
+        0, choices=(0, 2, 4, 8), help="Multisample anti-aliasing (4 is smoother, ~2.5x slower on CPU GL)"
+    )
+    shadows: bool = option(False, help="Render shadows and reflections (ten times slower on software GL)")
+    viewer: bool = option(False, help="Open a passive MuJoCo viewer when a display exists")
+    weld_root: bool = option(True, help="Remove free joints, welding the model where it stands")
+    gravcomp: bool = option(False, help="Compensate gravity on every body")
+    omega: float = option(
+        60.0, low=1, high=1000, help="Natural frequency (rad/s) of the position actuators the backend adds"
+    )
+    hold_unmapped: bool = option(True, help="Add actuators holding unmapped hinge joints at their rest angle")
+
+    def __post_init__(self) -> None:
+        if self.width % 2 or self.height % 2:
+            raise ValueError(f"width and height must be even (H.264), got {self.width}x{self.height}")
 
 
 class MujocoBackend(Backend):
@@ -77,15 +99,13 @@ class MujocoBackend(Backend):
     default_profile = "convo_humanoid"
     requires = ("mujoco",)
     extra = "sim"
+    Options = MujocoOptions
+    options: MujocoOptions
 
-    def __init__(self, options: dict[str, Any] | None = None) -> None:
+    def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
         super().__init__(options)
-        self.width = int(self.options.get("width", 640))
-        self.height = int(self.options.get("height", 480))
-        if self.width <= 0 or self.height <= 0 or self.width % 2 or self.height % 2:
-            raise UserError(
-                f"mujoco backend: width and height must be positive even numbers, got {self.width}x{self.height}"
-            )
+        self.width = self.options.width
+        self.height = self.options.height
         self.model: Any = None
         self.data: Any = None
         self.model_path: Path | None = None
@@ -115,11 +135,11 @@ class MujocoBackend(Backend):
         from convodrive.plumbing.mujoco_gl import select_gl
 
         self.gl, gl_reason = select_gl()
-        self.model_path = _resolve_model(self.options, spec)
+        self.model_path = _resolve_model(self.options.model, spec)
         mspec = load_spec(self.model_path)
-        if self.options.get("weld_root", True):
+        if self.options.weld_root:
             fix_root(mspec)
-        if self.options.get("gravcomp", False):
+        if self.options.gravcomp:
             for body in mspec.bodies:
                 body.gravcomp = 1.0
         self._add_actuators(mspec, compile_spec(mspec, self.model_path))
@@ -139,14 +159,14 @@ class MujocoBackend(Backend):
         self.max_err = np.zeros(len(spec.names))
         self.frames = 0
 
-        if self.options.get("video", True):
+        if self.options.video:
             if self.gl is None:
                 self.video_error = gl_reason
             else:
                 self._open_video(session)
-        if self.options.get("viewer", False) and not os.environ.get("DISPLAY"):
+        if self.options.viewer and not os.environ.get("DISPLAY"):
             self.viewer_error = "no display (DISPLAY is not set)"
-        elif self.options.get("viewer", False):
+        elif self.options.viewer:
             try:
                 import mujoco.viewer
 
@@ -177,7 +197,7 @@ class MujocoBackend(Backend):
             return act.biastype == mujoco.mjtBias.mjBIAS_AFFINE and act.biasprm[1] < 0
 
         targets = set(self.spec.names)
-        if self.options.get("hold_unmapped", True):
+        if self.options.hold_unmapped:
             # Joints coupled by an equality constraint (a mirrored eye) follow it, not a servo.
             coupled = {n for e in mspec.equalities if e.type == mujoco.mjtEq.mjEQ_JOINT for n in (e.name1, e.name2)}
             targets |= {
@@ -199,7 +219,7 @@ class MujocoBackend(Backend):
         mujoco.mj_forward(model, data)
         full = np.zeros((model.nv, model.nv))
         mujoco.mj_fullM(model, data, full)
-        omega = float(self.options.get("omega", 60.0))
+        omega = self.options.omega
         for name in sorted(needed):
             jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
             inertia = full[model.jnt_dofadr[jid], model.jnt_dofadr[jid]]
@@ -231,7 +251,7 @@ class MujocoBackend(Backend):
         import mujoco
 
         renderer = mujoco.Renderer(self.model, self.height, self.width)
-        if not self.options.get("shadows", False):  # software GL: shadows cost ~10x the frame time
+        if not self.options.shadows:  # software GL: shadows cost ~10x the frame time
             for flag in (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION):
                 renderer.scene.flags[flag] = 0
         return renderer
@@ -249,16 +269,16 @@ class MujocoBackend(Backend):
             m = self.model
             m.vis.global_.offwidth = max(m.vis.global_.offwidth, self.width)
             m.vis.global_.offheight = max(m.vis.global_.offheight, self.height)
-            m.vis.quality.offsamples = int(self.options.get("msaa", 0))  # 4x MSAA costs ~2.5x on software GL
+            m.vis.quality.offsamples = self.options.msaa  # 4x MSAA costs ~2.5x on software GL
             self._renderer = self._on_gl_thread(self._make_renderer)
-            cam = self.options.get("camera")
+            cam = self.options.camera
             if cam == "free":
                 cam = None
             elif cam is None and m.ncam:
                 cam = "front" if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, "front") >= 0 else m.camera(0).name
             if cam is not None:
                 if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, str(cam)) < 0:
-                    raise UserError(f"mujoco backend option camera: no camera {cam!r} in {self.model_path}")
+                    raise UserError(f"backend mujoco: option 'camera': no camera {cam!r} in {self.model_path}")
                 self._camera = str(cam)
             else:
                 self._camera = self._free_camera()
@@ -393,7 +413,7 @@ class MujocoBackend(Backend):
 
     def health(self) -> dict[str, Any]:
         summary = self._summary()
-        degraded = self.refused > 0 or (self.options.get("video", True) and self.video_error is not None)
+        degraded = self.refused > 0 or (self.options.video and self.video_error is not None)
         return {"status": "degraded" if degraded else "ok", **summary, "video_error": self.video_error}
 
     def report(self) -> dict[str, Any]:

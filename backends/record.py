@@ -10,7 +10,9 @@ files have one frame per 1/30 s up to the last frame of the run; the report coun
 
 from __future__ import annotations
 
+import dataclasses
 import logging
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -24,23 +26,30 @@ from convodrive.motion.livelink import write_livelink_csv
 from convodrive.motion.npz import save_clip
 from convodrive.motion.skeleton import NUM_JOINTS
 from convodrive.motion.targets import TargetFrame, TargetSpec
+from convodrive.plugins.options import PluginOptions, check_file_name, option
 from convodrive.plumbing.atomic import atomic_path
-from convodrive.plumbing.errors import UserError
 
 log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class RecordOptions(PluginOptions):
+    stem: str = option("motion", help="File name stem of the outputs: STEM.npz, STEM.bvh, STEM_livelink.csv")
+
+    def __post_init__(self) -> None:
+        check_file_name("stem", self.stem)
 
 
 class RecordBackend(Backend):
     name = "record"
     description = "Record the motion (.npz, BVH, Live Link Face CSV) and target frames to files"
     realtime = False
+    Options = RecordOptions
+    options: RecordOptions
 
-    def __init__(self, options: dict[str, Any] | None = None) -> None:
+    def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
         super().__init__(options)
-        stem = str(self.options.get("stem", "motion"))
-        if not stem or "/" in stem or "\\" in stem or stem.startswith("."):
-            raise UserError(f"backend 'record': option stem must be a plain file name, got {stem!r}")
-        self.stem = stem
+        self.stem = self.options.stem
         self._takes: list[dict[str, np.ndarray]] = []
         self._values = np.zeros((0, 0), np.float32)
         self._received = np.zeros(0, bool)

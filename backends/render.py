@@ -5,16 +5,15 @@ side by side), poses the procedural avatar, renders offscreen (EGL, else OSMesa)
 ``avatar.mp4`` (H.264, yuv420p, 30 fps, audio muxed) plus ``avatar_contact.png``, a contact
 sheet of evenly spaced frames. With ``window: true`` and a display it also shows the frames live.
 
-Options (``backends: {render: {...}}`` in the run config):
-  camera: full | upper | face (default upper)      resolution: "WxH" per take (default 512x512)
-  filename: avatar.mp4                              contact_sheet: avatar_contact.png, or false
-  antialias: false (true = 4x MSAA, ~2.5x slower)   window: false
+Options: ``RenderOptions`` below (``convodrive plugins render`` lists them).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -23,10 +22,12 @@ import numpy as np
 from convodrive.backends.avatar.render_scene import CAMERAS, AvatarRenderer, grid_shape, parse_resolution
 from convodrive.backends.base import Backend, Session
 from convodrive.motion.targets import TargetFrame, TargetSpec
+from convodrive.plugins.options import PluginOptions, check_file_name, option
 from convodrive.plumbing.atomic import atomic_path
 from convodrive.plumbing.errors import UserError
 
-_OPTIONS = {"camera", "resolution", "filename", "contact_sheet", "antialias", "window"}
+MAX_VIDEO_SIDE = 8192
+"""Widest or tallest video the grid of takes may make (H.264's largest frames)."""
 CONTACT_CELLS = 12
 CONTACT_COLUMNS = 4
 THUMB_WIDTH = 320
@@ -85,6 +86,29 @@ def display_available() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
+@dataclasses.dataclass(frozen=True)
+class RenderOptions(PluginOptions):
+    camera: str = option("upper", choices=tuple(CAMERAS), help="Camera preset framing the avatar")
+    resolution: str = option("512x512", help="Size of each take, WIDTHxHEIGHT, even numbers from 16 to 4096")
+    filename: str = option("avatar.mp4", help="Video file name in the output folder (.mp4)")
+    contact_sheet: str | bool = option(
+        "avatar_contact.png", help="File name of the PNG contact sheet, or false for none"
+    )
+    antialias: bool = option(False, help="4x multisampling (about 2.5x slower on software GL)")
+    window: bool = option(False, help="Also show the frames in a live window when a display exists")
+
+    def __post_init__(self) -> None:
+        try:
+            parse_resolution(self.resolution)
+        except UserError as exc:
+            raise ValueError(f"option {exc}") from None
+        check_file_name("filename", self.filename, ".mp4")
+        if self.contact_sheet is True:
+            raise ValueError("option 'contact_sheet' takes a file name or false, got true")
+        if self.contact_sheet:
+            check_file_name("contact_sheet", str(self.contact_sheet), ".png")
+
+
 class RenderBackend(Backend):
     name = "render"
     description = "Mesh avatar preview: headless pyrender (EGL/OSMesa) to mp4 with audio, K takes in a grid"
@@ -92,25 +116,17 @@ class RenderBackend(Backend):
     default_profile = None
     requires = ("pyrender", "OpenGL", "trimesh")
     extra = "render"
+    Options = RenderOptions
+    options: RenderOptions
 
-    def __init__(self, options: dict[str, Any] | None = None) -> None:
+    def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
         super().__init__(options)
-        unknown = set(self.options) - _OPTIONS
-        if unknown:
-            raise UserError(
-                f"render: unknown option(s) {', '.join(sorted(unknown))} (known: {', '.join(sorted(_OPTIONS))})"
-            )
-        self.camera = str(self.options.get("camera", "upper"))
-        if self.camera not in CAMERAS:
-            raise UserError(f"render: camera {self.camera!r} is not one of {', '.join(CAMERAS)}")
-        self.width, self.height = parse_resolution(self.options.get("resolution", "512x512"))
-        self.filename = str(self.options.get("filename", "avatar.mp4"))
-        if not self.filename.lower().endswith(".mp4"):
-            raise UserError(f"render: filename {self.filename!r} must end in .mp4")
-        sheet = self.options.get("contact_sheet", "avatar_contact.png")
-        self.sheet_name = None if sheet in (False, None, "") else str(sheet)
-        self.antialias = bool(self.options.get("antialias", False))
-        self.want_window = bool(self.options.get("window", False))
+        self.camera = self.options.camera
+        self.width, self.height = parse_resolution(self.options.resolution)
+        self.filename = self.options.filename
+        self.sheet_name = str(self.options.contact_sheet) if self.options.contact_sheet else None
+        self.antialias = self.options.antialias
+        self.want_window = self.options.window
         self.window_note = None
         if self.want_window and display_available():
             self.realtime = True  # type: ignore[misc]  # a live window is paced by the wall clock
@@ -135,6 +151,13 @@ class RenderBackend(Backend):
         from convodrive.backends.avatar.pyrender_gl import select_platform
 
         super().open(spec, session)
+        rows, cols = grid_shape(session.num_samples)
+        if max(cols * self.width, rows * self.height) > MAX_VIDEO_SIDE:
+            raise UserError(
+                f"backend render: {session.num_samples} takes of {self.options.resolution} make a "
+                f"{cols * self.width}x{rows * self.height} video; the most is {MAX_VIDEO_SIDE} a side "
+                "(lower the resolution or the takes)"
+            )
         self.out_dir = Path(session.out_dir)
         self.video_path = self.out_dir / self.filename
         select_platform()

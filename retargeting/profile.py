@@ -30,18 +30,21 @@ Schema (per joint under ``joints:``)::
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import importlib.resources
 import math
+import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from convodrive.motion.channels import BLENDSHAPE_INDEX
 from convodrive.motion.skeleton import JOINT_INDEX
 from convodrive.motion.targets import TargetSpec
 from convodrive.plumbing.errors import InputFileError, UserError
+from convodrive.plumbing.safe_yaml import load_yaml_file, number_text
+from convodrive.plumbing.text import clip_value
 
 AXES = "XYZ"
 UNITS = ("rad", "norm", "m")
@@ -62,6 +65,8 @@ JOINT_KEYS = (
     "smoothing",
 )
 TERM_KEYS = ("rotation", "blendshape", "translation", "euler", "axis", "weight", "map")
+MAX_MAGNITUDE = 1e6
+"""Largest size of any number in a profile: anything bigger is a typo, and would overflow."""
 SMOOTHING_DEFAULT: dict[str, Any] = {"filter": "one_euro", "min_cutoff": 1.5, "beta": 0.3, "d_cutoff": 1.0}
 
 
@@ -148,29 +153,35 @@ class _Checker:
     def keys(self, value: dict[str, Any], allowed: tuple[str, ...], key: str) -> None:
         for k in value:
             if k not in allowed:
-                self.fail(f"{key}.{k}" if key else str(k), f"unknown key (expected one of: {', '.join(allowed)})")
+                close = difflib.get_close_matches(str(k), allowed, n=1, cutoff=0.6)
+                hint = f"did you mean '{close[0]}'?" if close else f"expected one of: {', '.join(allowed)}"
+                name = clip_value(str(k), 40).strip("'")
+                self.fail(f"{key}.{name}" if key else name, f"unknown key ({hint})")
 
-    def number(self, value: Any, key: str, positive: bool = False) -> float:
+    def number(self, value: Any, key: str, positive: bool = False, unlimited: bool = False) -> float:
+        """A finite number of sane size; ``unlimited`` also admits ``inf`` (an absent limit)."""
+        if isinstance(value, str) and unlimited and value.strip().lower() in ("inf", ".inf"):
+            value = math.inf
+        value = number_text(value)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            if isinstance(value, str) and value.strip().lower() in ("inf", ".inf"):
-                value = math.inf
-            else:
-                self.fail(key, f"must be a number, got {value!r}")
-        if math.isnan(value):
-            self.fail(key, "must be a number, got nan")
+            self.fail(key, f"must be a number, got {clip_value(value)}")
+        if math.isnan(value) or (math.isinf(value) and not (unlimited and value > 0)):
+            self.fail(key, f"must be a finite number, got {value}")
+        if math.isfinite(value) and abs(value) > MAX_MAGNITUDE:
+            self.fail(key, f"must be at most {MAX_MAGNITUDE:g} in size, got {value:g}")
         if positive and value <= 0:
             self.fail(key, f"must be positive, got {value}")
         return float(value)
 
     def string(self, value: Any, key: str) -> str:
         if not isinstance(value, str) or not value:
-            self.fail(key, f"must be a non-empty string, got {value!r}")
+            self.fail(key, f"must be a non-empty string, got {clip_value(value)}")
         return value
 
     def canonical_joint(self, value: Any, key: str) -> str:
         name = self.string(value, key)
         if name not in JOINT_INDEX:
-            self.fail(key, f"unknown canonical joint {name!r}")
+            self.fail(key, f"unknown canonical joint {clip_value(name)}")
         return name
 
     def axis(self, value: Any, key: str, order: str = AXES) -> int:
@@ -178,7 +189,7 @@ class _Checker:
             return order.index(value.upper())
         if isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= 2:
             return value
-        self.fail(key, f"must be 0, 1, 2 or one of {', '.join(order)}, got {value!r}")
+        self.fail(key, f"must be 0, 1, 2 or one of {', '.join(order)}, got {clip_value(value)}")
         raise AssertionError
 
 
@@ -188,7 +199,7 @@ def _parse_map(ck: _Checker, value: Any, key: str) -> tuple[tuple[float, ...], t
     xs, ys = [], []
     for i, point in enumerate(value):
         if not isinstance(point, list) or len(point) != 2:
-            ck.fail(f"{key}[{i}]", f"must be an [x, y] pair, got {point!r}")
+            ck.fail(f"{key}[{i}]", f"must be an [x, y] pair, got {clip_value(point)}")
         xs.append(ck.number(point[0], f"{key}[{i}][0]"))
         ys.append(ck.number(point[1], f"{key}[{i}][1]"))
     if any(b <= a for a, b in zip(xs, xs[1:])):
@@ -218,7 +229,7 @@ def _parse_term(ck: _Checker, value: Any, key: str) -> Term:
         chain = tuple(ck.canonical_joint(n, f"{key}.rotation") for n in names)
         order = term.get("euler", "XYZ")
         if not isinstance(order, str) or len(order) != 3 or set(order.upper()) != set(AXES):
-            ck.fail(f"{key}.euler", f"must be a permutation of XYZ such as ZXY, got {order!r}")
+            ck.fail(f"{key}.euler", f"must be a permutation of XYZ such as ZXY, got {clip_value(order)}")
         order = order.upper()
         if "axis" not in term:
             ck.fail(f"{key}.axis", "is required with rotation (which Euler angle drives the joint)")
@@ -237,7 +248,7 @@ def _parse_term(ck: _Checker, value: Any, key: str) -> Term:
     if kind == "blendshape":
         channel = ck.string(term["blendshape"], f"{key}.blendshape")
         if channel not in BLENDSHAPE_INDEX:
-            ck.fail(f"{key}.blendshape", f"unknown channel {channel!r} (expected an ARKit blendshape name)")
+            ck.fail(f"{key}.blendshape", f"unknown channel {clip_value(channel)} (expected an ARKit blendshape name)")
         return Term("blendshape", channel=channel, weight=weight, map_x=map_x, map_y=map_y)
     return Term(
         "translation", axis=ck.axis(term["translation"], f"{key}.translation"), weight=weight, map_x=map_x, map_y=map_y
@@ -251,7 +262,7 @@ def _parse_smoothing(ck: _Checker, value: Any, key: str, base: Smoothing) -> Smo
     ck.keys(sm, ("filter", "min_cutoff", "beta", "d_cutoff", "time_constant"), key)
     kind = sm.get("filter", base.filter)
     if kind not in FILTERS:
-        ck.fail(f"{key}.filter", f"unknown filter {kind!r} (expected one of: {', '.join(FILTERS)})")
+        ck.fail(f"{key}.filter", f"unknown filter {clip_value(kind)} (expected one of: {', '.join(FILTERS)})")
     fields = {"filter": kind}
     for name in ("min_cutoff", "d_cutoff", "time_constant"):
         if name in sm:
@@ -283,18 +294,16 @@ def _parse_joint(ck: _Checker, name: str, value: Any, smoothing: Smoothing, by_i
         ck.fail(f"{key}.limits", "is required: [min, max]")
     lim = spec["limits"]
     if not isinstance(lim, list) or len(lim) != 2:
-        ck.fail(f"{key}.limits", f"must be [min, max], got {lim!r}")
+        ck.fail(f"{key}.limits", f"must be [min, max], got {clip_value(lim)}")
     lower, upper = ck.number(lim[0], f"{key}.limits[0]"), ck.number(lim[1], f"{key}.limits[1]")
-    if not (math.isfinite(lower) and math.isfinite(upper)):
-        ck.fail(f"{key}.limits", "must be finite")
     if lower > upper:
         ck.fail(f"{key}.limits", f"min {lower} is above max {upper}")
     direction = ck.number(spec.get("direction", 1), f"{key}.direction")
     if direction not in (1.0, -1.0):
-        ck.fail(f"{key}.direction", f"must be 1 or -1, got {spec['direction']!r}")
+        ck.fail(f"{key}.direction", f"must be 1 or -1, got {clip_value(spec['direction'])}")
     units = spec.get("units", "rad")
     if units not in UNITS:
-        ck.fail(f"{key}.units", f"must be one of {', '.join(UNITS)}, got {units!r}")
+        ck.fail(f"{key}.units", f"must be one of {', '.join(UNITS)}, got {clip_value(units)}")
     neutral = ck.number(spec.get("neutral", 0.0), f"{key}.neutral")
     return JointMap(
         name=name,
@@ -304,8 +313,12 @@ def _parse_joint(ck: _Checker, name: str, value: Any, smoothing: Smoothing, by_i
         direction=direction,
         lower=lower,
         upper=upper,
-        max_velocity=ck.number(spec.get("max_velocity", math.inf), f"{key}.max_velocity", positive=True),
-        max_acceleration=ck.number(spec.get("max_acceleration", math.inf), f"{key}.max_acceleration", positive=True),
+        max_velocity=ck.number(
+            spec.get("max_velocity", math.inf), f"{key}.max_velocity", positive=True, unlimited=True
+        ),
+        max_acceleration=ck.number(
+            spec.get("max_acceleration", math.inf), f"{key}.max_acceleration", positive=True, unlimited=True
+        ),
         neutral=min(max(neutral, lower), upper),
         units=units,
         smoothing=_parse_smoothing(ck, spec["smoothing"], f"{key}.smoothing", smoothing)
@@ -317,14 +330,14 @@ def _parse_joint(ck: _Checker, name: str, value: Any, smoothing: Smoothing, by_i
 def _parse_axes(ck: _Checker, value: Any, key: str) -> np.ndarray:
     """``[z, x, y]``: robot X is canonical Z, and so on; a leading ``-`` flips a sign."""
     if not isinstance(value, list) or len(value) != 3:
-        ck.fail(key, f"must list three canonical axes such as [z, x, y], got {value!r}")
+        ck.fail(key, f"must list three canonical axes such as [z, x, y], got {clip_value(value)}")
     m = np.zeros((3, 3))
     for row, item in enumerate(value):
         text = str(item).strip().lower()
         sign = -1.0 if text.startswith("-") else 1.0
         text = text.lstrip("+-")
         if text not in ("x", "y", "z"):
-            ck.fail(f"{key}[{row}]", f"must be x, y or z with an optional sign, got {item!r}")
+            ck.fail(f"{key}[{row}]", f"must be x, y or z with an optional sign, got {clip_value(item)}")
         m[row, "xyz".index(text)] = sign
     if abs(abs(np.linalg.det(m)) - 1.0) > 1e-9:
         ck.fail(key, "must use each axis once")
@@ -339,7 +352,9 @@ def _parse_ik(ck: _Checker, value: Any, joints: dict[str, JointMap]) -> IKConfig
         ck.fail("ik.joints", "must list the profile joints that IK sets")
     for i, n in enumerate(names):
         if n not in joints:
-            ck.fail(f"ik.joints[{i}]", f"unknown joint {n!r} (not under joints:)")
+            ck.fail(f"ik.joints[{i}]", f"unknown joint {clip_value(n)} (not under joints:)")
+        if n in names[:i]:
+            ck.fail(f"ik.joints[{i}]", f"joint {clip_value(n)} is listed twice")
     root = ck.mapping(ik.get("root"), "ik.root")
     ck.keys(root, ("canonical", "body"), "ik.root")
     root_canonical = ck.canonical_joint(root.get("canonical"), "ik.root.canonical")
@@ -354,7 +369,7 @@ def _parse_ik(ck: _Checker, value: Any, joints: dict[str, JointMap]) -> IKConfig
         ck.keys(t, ("frame", "type", "canonical", "anchor", "position_cost", "orientation_cost"), key)
         frame_type = t.get("type", "body")
         if frame_type not in ("body", "site", "geom"):
-            ck.fail(f"{key}.type", f"must be body, site or geom, got {frame_type!r}")
+            ck.fail(f"{key}.type", f"must be body, site or geom, got {clip_value(frame_type)}")
         anchor = ck.mapping(t.get("anchor", {"canonical": root_canonical, "body": root_body}), f"{key}.anchor")
         ck.keys(anchor, ("canonical", "body"), f"{key}.anchor")
         tasks.append(
@@ -370,7 +385,7 @@ def _parse_ik(ck: _Checker, value: Any, joints: dict[str, JointMap]) -> IKConfig
         )
     iterations = ik.get("iterations", 3)
     if not isinstance(iterations, int) or isinstance(iterations, bool) or iterations < 1:
-        ck.fail("ik.iterations", f"must be a positive integer, got {iterations!r}")
+        ck.fail("ik.iterations", f"must be a positive integer, got {clip_value(iterations)}")
     return IKConfig(
         joints=tuple(names),
         root_canonical=root_canonical,
@@ -396,10 +411,10 @@ def _resolve_model(ck: _Checker, value: Any, base: Path | None) -> Path | None:
         try:
             root = importlib.resources.files(package)
         except ModuleNotFoundError:
-            ck.fail("model.package", f"package {package!r} is not installed")
+            ck.fail("model.package", f"package {clip_value(package)} is not installed")
         path = Path(str(root.joinpath(rel)))
         if not path.is_file():
-            ck.fail("model.path", f"{rel!r} not found in package {package!r}")
+            ck.fail("model.path", f"{clip_value(rel)} not found in package {clip_value(package)}")
         return path
     rel = ck.string(value, "model")
     candidates = [Path(rel).expanduser()]
@@ -409,7 +424,7 @@ def _resolve_model(ck: _Checker, value: Any, base: Path | None) -> Path | None:
     for path in candidates:
         if path.is_file():
             return path.resolve()
-    ck.fail("model", f"MJCF {rel!r} not found beside the profile nor in convodrive.sims")
+    ck.fail("model", f"MJCF {clip_value(rel)} not found beside the profile nor in convodrive.sims")
     return None
 
 
@@ -442,6 +457,7 @@ class RobotProfile:
             max_velocity=np.array([j.max_velocity for j in joints]),
             max_acceleration=np.array([j.max_acceleration for j in joints]),
             units=tuple(j.units for j in joints),  # type: ignore[arg-type]
+            model=model_path,
         )
 
     def __repr__(self) -> str:
@@ -455,6 +471,11 @@ class RobotProfile:
         if not isinstance(options, dict):
             raise InputFileError(self.path or self.name, f"{key}.{name}: must be a mapping of options")
         return dict(options)
+
+    @property
+    def sections(self) -> dict[str, Any]:
+        """The profile's ``backends:`` and ``generator:`` sections, as given."""
+        return dict(self._extras)
 
     def backend_options(self, name: str) -> dict[str, Any]:
         """Options for backend ``name`` from the top-level ``backends:`` section (opaque here)."""
@@ -498,32 +519,45 @@ class RobotProfile:
             if key in data and data[key] is not None:
                 ck.mapping(data[key], key)
         extras = {k: data[k] for k in OPAQUE_KEYS if data.get(k) is not None}
-        return cls(name, tuple(joints.values()), model_path, ik, path, extras, str(data.get("description", "")))
+        description = data.get("description", "")
+        if not isinstance(description, str):
+            ck.fail("description", f"must be text, got {clip_value(description)}")
+        return cls(name, tuple(joints.values()), model_path, ik, path, extras, description)
 
 
-def resolve_profile_path(path_or_name: str | Path) -> Path:
-    """A path to a YAML file, or a bare name looked up in convodrive.config/robots."""
+def bundled_profiles() -> list[str]:
+    """Names of the profiles shipped in convodrive.config/robots."""
+    return sorted(p.stem for p in _bundled_dir().glob("*.yaml"))
+
+
+def _bundled_dir() -> Path:
+    return Path(str(importlib.resources.files("convodrive.config").joinpath("robots")))
+
+
+def resolve_profile_path(path_or_name: str | os.PathLike[str]) -> Path:
+    """The one rule for naming a profile or run config, everywhere (``--config``, a run config's
+    ``profile:``, the servo tools): a file that exists is that file; else a bare name (no folder,
+    no .yaml) is the bundled profile of that name; anything else is a path that does not exist."""
     text = str(path_or_name)
     candidate = Path(text).expanduser()
-    if candidate.suffix in (".yaml", ".yml") or candidate.exists() or "/" in text:
+    if candidate.exists() or "/" in text or os.sep in text or candidate.suffix.lower() in (".yaml", ".yml"):
         return candidate
-    return Path(str(importlib.resources.files("convodrive.config").joinpath("robots", f"{text}.yaml")))
+    return _bundled_dir() / f"{text}.yaml"
 
 
-def load_profile(path_or_name: str | Path) -> RobotProfile:
+def missing_profile(path_or_name: str | os.PathLike[str], path: Path, what: str = "robot profile") -> UserError:
+    """One line for a profile or config that is not there, listing the bundled names."""
+    names = ", ".join(bundled_profiles())
+    if path.parent == _bundled_dir():
+        return UserError(
+            f"unknown robot profile {clip_value(str(path_or_name))} (no such {what} file, nor a bundled profile: {names})"
+        )
+    return InputFileError(path, f"no such {what} file (or give a bundled profile by name: {names})")
+
+
+def load_profile(path_or_name: str | os.PathLike[str]) -> RobotProfile:
     """Load and validate a robot profile; raise ``InputFileError`` naming the file and key."""
     path = resolve_profile_path(path_or_name)
-    if not path.is_file():
-        if path.parent.name == "robots" and not str(path_or_name).endswith((".yaml", ".yml")):
-            available = sorted(p.stem for p in path.parent.glob("*.yaml"))
-            raise UserError(f"unknown robot profile {str(path_or_name)!r} (available: {', '.join(available)})")
-        raise InputFileError(path, "no such file")
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        raise InputFileError(path, f"not valid YAML{where}: {getattr(exc, 'problem', exc)}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputFileError(path, f"cannot read: {exc}") from None
-    return RobotProfile.from_dict(data, path)
+    if not path.exists():
+        raise missing_profile(path_or_name, path)
+    return RobotProfile.from_dict(load_yaml_file(path), path)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ctypes
 import os
 import subprocess
 import sys
@@ -15,9 +16,14 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def run_cli(
-    *args: str, env: dict[str, str] | None = None, timeout: float = 300, cwd: Path | None = None
+    *args: str,
+    env: dict[str, str] | None = None,
+    timeout: float = 300,
+    cwd: Path | None = None,
+    as_user: bool = False,
 ) -> subprocess.CompletedProcess:
-    """Run ``convodrive`` in a fresh interpreter, as a user's shell would."""
+    """Run ``convodrive`` in a fresh interpreter, as a user's shell would. ``as_user``: without
+    root's power to read any file, so a file that is not readable reads as a user meets it."""
     full_env = {**os.environ, **(env or {})}
     return subprocess.run(
         [sys.executable, "-m", "convodrive.cli.main", *args],
@@ -26,7 +32,19 @@ def run_cli(
         timeout=timeout,
         env=full_env,
         cwd=cwd,
+        preexec_fn=_drop_read_override if as_user else None,
     )
+
+
+def _drop_read_override() -> None:
+    """Drop CAP_DAC_OVERRIDE and CAP_DAC_READ_SEARCH from the bounding set before exec (Linux), so
+    that even root is refused a file with mode 000."""
+    if os.geteuid() != 0:
+        return
+    libc = ctypes.CDLL(None, use_errno=True)
+    for capability in (1, 2):  # CAP_DAC_OVERRIDE, CAP_DAC_READ_SEARCH
+        if libc.prctl(24, capability, 0, 0, 0) != 0:  # PR_CAPBSET_DROP
+            raise OSError(ctypes.get_errno(), "prctl(PR_CAPBSET_DROP)")
 
 
 @pytest.fixture

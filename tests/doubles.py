@@ -5,14 +5,22 @@ The tests and the scheduler benchmark both use them; nothing shipped does.
 
 from __future__ import annotations
 
+import dataclasses
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 from convodrive import FPS
 from convodrive.backends.base import Backend
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.targets import TargetFrame
+from convodrive.plugins.options import PluginOptions, option
+
+
+@dataclasses.dataclass(frozen=True)
+class DoubleOptions(PluginOptions):
+    name: str = option("fast", help="Name in the run report")
+    delay: float = option(0.2, low=0, high=60, help="Seconds a SlowBackend takes per frame")
 
 
 class CountingBackend(Backend):
@@ -20,10 +28,12 @@ class CountingBackend(Backend):
 
     name = "fast"
     realtime = True
+    Options = DoubleOptions
+    options: DoubleOptions
 
-    def __init__(self, options: dict[str, Any] | None = None) -> None:
+    def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
         super().__init__(options)
-        self.name = str(self.options.get("name", "fast"))
+        self.name = self.options.name
         self.indices: list[int] = []
         self.closed = False
 
@@ -38,7 +48,7 @@ class SlowBackend(CountingBackend):
     """Takes ``delay`` seconds per frame, like a congested serial bus."""
 
     def send(self, frame: TargetFrame) -> None:
-        time.sleep(float(self.options.get("delay", 0.2)))
+        time.sleep(self.options.delay)
         super().send(frame)
 
 

@@ -17,13 +17,16 @@ import collections
 import re
 import threading
 import time
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from convodrive.backends.base import Backend, Session
 from convodrive.backends.servo.safety import Ease, RawMap, Refused, SafetyGuard, Watchdog
+from convodrive.backends.servo.servo_options import ServoOptions
 from convodrive.motion.targets import TargetFrame, TargetSpec
+from convodrive.plugins.options import PluginOptions
 from convodrive.plumbing.errors import UserError
 
 MAX_EVENTS = 100
@@ -52,14 +55,17 @@ def open_error(port: str, exc: Exception) -> UserError:
 
 
 class ServoBackend(Backend):
-    def __init__(self, options: dict[str, Any] | None = None) -> None:
+    Options = ServoOptions
+    options: ServoOptions
+
+    def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
         super().__init__(options)
         self.guard: SafetyGuard | None = None
         self.names: list[str] = []
         self.columns = np.zeros(0, dtype=int)
-        self.watchdog = Watchdog(float(self.options.get("watchdog_s", 0.5)))
-        self.ease_s = float(self.options.get("ease_s", 1.0))
-        self.read_period = 1.0 / max(0.1, float(self.options.get("read_rate", 10.0)))
+        self.watchdog = Watchdog(self.options.watchdog_s)
+        self.ease_s = self.options.ease_s
+        self.read_period = 1.0 / self.options.read_rate
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -118,7 +124,7 @@ class ServoBackend(Backend):
     # ---------------------------------------------------------------- open
     def open(self, spec: TargetSpec, session: Session) -> None:
         super().open(spec, session)
-        if not self.options.get("port"):
+        if not self.options.port:
             raise UserError(
                 f"backends.{self.name}.port: no serial port given (run `convodrive emulate "
                 f"{self.name}` for an emulated one and use the path it prints)"
@@ -284,7 +290,7 @@ class ServoBackend(Backend):
             current.append("port_lost")
         return {
             "status": "degraded" if current else "ok",
-            "port": self.options.get("port"),
+            "port": self.options.port,
             "active_faults": sorted(set(current)),
             "faults": sorted(self._faults),
             "frames": self._counts["frames"],
@@ -303,7 +309,7 @@ class ServoBackend(Backend):
         return {
             "status": status,
             "faults": sorted(self._faults),
-            "port": self.options.get("port"),
+            "port": self.options.port,
             "frames": self._counts["frames"],
             "frames_refused": self._counts["frames_refused"],
             "frames_unsent": self._counts["frames_unsent"],
@@ -331,6 +337,7 @@ def sub_spec(spec: TargetSpec, names: list[str]) -> TargetSpec:
         spec.max_velocity[idx],
         spec.max_acceleration[idx],
         tuple(spec.units[i] for i in idx),
+        spec.model,
     )
 
 

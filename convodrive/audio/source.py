@@ -21,7 +21,7 @@ from scipy.signal import resample_poly
 
 from convodrive import FPS
 from convodrive.audio import ffmpeg
-from convodrive.plumbing.errors import InputFileError
+from convodrive.plumbing.errors import InputFileError, os_reason
 
 ANALYSIS_RATE = 16_000
 """Every generator sees audio at 16 kHz: enough for speech, and what pocketsphinx expects."""
@@ -253,11 +253,16 @@ class _Columns:
 def probe_audio(path: str | Path) -> AudioInfo:
     """Check that ``path`` is a readable, non-empty audio file of a supported format."""
     path = Path(path)
-    if not path.exists():
-        raise InputFileError(path, "no such file")
-    if path.is_dir():
-        raise InputFileError(path, "is a folder, not an audio file")
-    if path.stat().st_size == 0:
+    try:
+        with path.open("rb") as f:  # libsndfile would only say "System error."
+            empty = not f.read(1)
+    except FileNotFoundError:
+        raise InputFileError(path, "no such file") from None
+    except IsADirectoryError:
+        raise InputFileError(path, "is a folder, not an audio file") from None
+    except OSError as exc:
+        raise InputFileError(path, f"cannot read ({os_reason(exc)})") from None
+    if empty:
         raise InputFileError(path, "file is empty")
     try:
         info = sf.info(str(path))

@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     if not backends:
         raise UserError("demo: no backend is available")
     with contextlib.ExitStack() as stack:
-        backend_options: dict[str, dict[str, Any]] = {"render": {"camera": "upper"}}
+        backend_options: dict[str, dict[str, Any]] = {"render": {"camera": "upper"}} if "render" in backends else {}
         if "dynamixel" in backends:
             backend_options["dynamixel"] = stack.enter_context(_emulated_servo_head())
         request = DriveRequest(

@@ -6,9 +6,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from convodrive.cli.options import backend_key_value, channel_map, key_value, name_list, positive_int
+from convodrive.cli.options import backend_key_value, channel_map, int_in, key_value, name_list
 from convodrive.cli.progress import frame_progress
-from convodrive.pipeline import DEFAULT_GENERATOR, DriveRequest, DriveResult, drive
+from convodrive.pipeline import DEFAULT_GENERATOR, MAX_SAMPLES, DriveRequest, DriveResult, drive
+from convodrive.plumbing.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -27,7 +28,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="NAME[,NAME]",
         help="backend plugins, comma-separated (default: record)",
     )
-    p.add_argument("--config", type=Path, metavar="FILE", help="robot profile or run preset (YAML)")
+    p.add_argument(
+        "--config",
+        metavar="FILE|NAME",
+        help="robot profile or run preset: a YAML file, or a bundled profile's name (e.g. servo_head)",
+    )
     p.add_argument(
         "--out",
         type=Path,
@@ -36,7 +41,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="output folder (default: ./convodrive-out)",
     )
     p.add_argument("--seed", type=int, default=0, help="random seed: the same seed gives the same motion (default: 0)")
-    p.add_argument("--samples", type=positive_int, default=1, metavar="K", help="generate K takes of the same audio")
+    p.add_argument(
+        "--samples",
+        type=int_in(1, MAX_SAMPLES),
+        default=1,
+        metavar="K",
+        help=f"generate K takes of the same audio (1 to {MAX_SAMPLES})",
+    )
     mode = p.add_mutually_exclusive_group()
     mode.add_argument(
         "--realtime",
@@ -79,6 +90,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     gen_options = dict(args.generator_option)
     if args.motion is not None:
+        if args.generator != "replay":
+            raise UserError(f"--motion is for the replay generator (this run's generator is {args.generator})")
         gen_options["motion"] = str(args.motion)
     backend_options: dict[str, dict] = {}
     for backend, key, value in args.backend_option:

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from typing import Any
 
-import yaml
-
 from convodrive.audio.source import ChannelMap
+from convodrive.plumbing.safe_yaml import parse_scalar
+from convodrive.plumbing.text import clip_value
 
 
 def channel_map(text: str) -> ChannelMap:
@@ -24,26 +25,42 @@ def name_list(text: str) -> tuple[str, ...]:
     return names
 
 
-def positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a number of at least 1, got {value}")
-    return value
+def int_in(low: int, high: int) -> Callable[[str], int]:
+    """An argparse type: a whole number from ``low`` to ``high`` (every count is bounded)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {clip_value(text)}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"expected a whole number from {low} to {high}, got {value}")
+        return value
+
+    return parse
+
+
+def number_in(low: float, high: float) -> Callable[[str], float]:
+    """An argparse type: a finite number from ``low`` to ``high``."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {clip_value(text)}") from None
+        if not low <= value <= high:  # also false for nan
+            raise argparse.ArgumentTypeError(f"expected a number from {low:g} to {high:g}, got {clip_value(text)}")
+        return value
+
+    return parse
 
 
 def key_value(text: str) -> tuple[str, Any]:
     """``KEY=VALUE`` with VALUE read as YAML, so numbers and booleans keep their types."""
     key, sep, raw = text.partition("=")
     if not sep or not key.strip():
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
-    try:
-        value = yaml.safe_load(raw) if raw.strip() else ""
-    except yaml.YAMLError:
-        value = raw
-    return key.strip(), value
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {clip_value(text)}")
+    return key.strip(), parse_scalar(raw)
 
 
 def backend_key_value(text: str) -> tuple[str, str, Any]:
@@ -51,5 +68,7 @@ def backend_key_value(text: str) -> tuple[str, str, Any]:
     key, value = key_value(text)
     backend, dot, option = key.partition(".")
     if not dot or not backend or not option:
-        raise argparse.ArgumentTypeError(f"expected BACKEND.KEY=VALUE (e.g. render.camera=face), got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected BACKEND.KEY=VALUE (e.g. render.camera=face), got {clip_value(text)}"
+        )
     return backend, option, value

@@ -3,8 +3,13 @@
 ``scan`` lists the servos on a port (id, model, firmware). ``calibrate`` switches torque off and
 asks you to move each joint through its whole range; the range seen becomes the joint's
 ``min_tick``/``max_tick`` in the profile, written back atomically with the rest of the file (and
-its comments) untouched; a bundled profile named without a path is written to ./NAME.yaml instead. ``monitor`` shows a live health table (position, temperature, voltage,
-hardware errors, lost replies) without switching torque on.
+its comments) untouched; a bundled profile named without a path is written to ./NAME.yaml
+instead. ``monitor`` shows a live health table (position, temperature, voltage, hardware errors,
+lost replies) without switching torque on.
+
+The bus settings are the ``dynamixel`` backend's own options (``DynamixelOptions``): read from the
+profile's ``backends.dynamixel``, overridden by flags made from the same declaration, and the bus
+is built by the backend's own ``make_bus``; nothing here repeats a name, a default or a range.
 """
 
 from __future__ import annotations
@@ -18,12 +23,22 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from convodrive.backends.servo.servo_options import DynamixelOptions
+from convodrive.plugins.options import (
+    add_option_arguments,
+    check_options,
+    describe_options,
+    merge_options,
+    option_arguments,
+)
 from convodrive.plumbing.atomic import write_text_atomic
 from convodrive.plumbing.errors import InputFileError, UserError
+from convodrive.plumbing.safe_yaml import parse_scalar, parse_yaml
 
 STANDARD_BAUDRATES = (57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 9_600)
+BUS_OPTIONS = ("port", "baudrate", "retries", "latency_ms")
+"""The backend's options that the tools take as flags (``--latency-ms``)."""
+PLUGIN = "backend dynamixel"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -33,9 +48,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Find, calibrate and watch the Dynamixel servos of a head.",
     )
     tools = p.add_subparsers(dest="tool", metavar="TOOL", required=True)
+    info = {i.name: i for i in describe_options(DynamixelOptions)}
     scan = tools.add_parser("scan", help="list servo ids, models and firmware on a port")
-    scan.add_argument("--port", required=True, help="serial port, e.g. /dev/ttyUSB0")
-    scan.add_argument("--baudrate", type=int, action="append", help="baud rate to try (repeatable; default 1000000)")
+    scan.add_argument("--port", required=True, help=info["port"].help)
+    scan.add_argument(
+        "--baudrate",
+        action="append",
+        help=f"{info['baudrate'].help} to try (repeatable; {info['baudrate'].kind()}; default 1000000)",
+    )
     scan.add_argument("--all-baudrates", action="store_true", help="try every standard baud rate")
     scan.set_defaults(func=run_scan)
     for name, fn, text in (
@@ -43,8 +63,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ("monitor", run_monitor, "live health table"),
     ):
         t = tools.add_parser(name, help=text)
-        t.add_argument("--config", default="servo_head", help="robot profile (name or YAML path; default servo_head)")
-        t.add_argument("--port", help="override backends.dynamixel.port")
+        t.add_argument(
+            "--config", default="servo_head", help="robot profile: a YAML file or a bundled name (default servo_head)"
+        )
+        add_option_arguments(t, DynamixelOptions, BUS_OPTIONS)
         t.set_defaults(func=fn)
     tools.choices["calibrate"].add_argument("--joint", action="append", help="only these joints (repeatable)")
     tools.choices["calibrate"].add_argument("--output", help="write the calibrated profile here instead")
@@ -71,7 +93,11 @@ def scan(port: str, baudrates: list[int]) -> list[tuple[int, int, int, int]]:
 def run_scan(args: argparse.Namespace) -> int:
     from convodrive.backends.servo.dynamixel_table import model_name
 
-    rates = list(STANDARD_BAUDRATES) if args.all_baudrates else (args.baudrate or [1_000_000])
+    given = [
+        check_options(DynamixelOptions, {"baudrate": parse_scalar(b)}, plugin="--baudrate")["baudrate"]
+        for b in args.baudrate or []
+    ]
+    rates = list(STANDARD_BAUDRATES) if args.all_baudrates else (given or [1_000_000])
     found = scan(args.port, rates)
     if not found:
         raise UserError(f"{args.port}: no servo answers at {', '.join(map(str, rates))} baud")
@@ -82,32 +108,25 @@ def run_scan(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------- profile access
-def _profile(config: str) -> tuple[Path, Any, dict[str, Any]]:
-    from convodrive.retargeting.profile import load_profile, resolve_profile_path
+def _profile(config: str, flags: dict[str, Any] | None = None) -> tuple[Path, DynamixelOptions]:
+    """The profile's file and its Dynamixel options, with the tools' flags on top."""
+    from convodrive.retargeting.profile import load_profile
 
     profile = load_profile(config)
-    options = profile.backend_options("dynamixel")
-    if not options.get("joints"):
-        raise InputFileError(resolve_profile_path(config), "backends.dynamixel.joints: no servos configured")
-    return resolve_profile_path(config), profile, options
-
-
-def _bus(options: dict[str, Any], port: str | None):  # type: ignore[no-untyped-def]
-    from convodrive.backends.servo import dynamixel_table as dt
-    from convodrive.backends.servo.dynamixel_bus import DynamixelBus, Motor
-
-    default = dt.model(str(options.get("model", "xl330")))
-    motors = [
-        Motor(name, int(j["id"]), dt.model(j["model"]) if j.get("model") else default)
-        for name, j in options["joints"].items()
-    ]
-    bus = DynamixelBus(
-        port or str(options.get("port", "")),
-        motors,
-        baudrate=int(options.get("baudrate", 1_000_000)),
-        retries=int(options.get("retries", 2)),
-        latency_ms=float(options.get("latency_ms", 16.0)),
+    path = Path(profile.path)
+    options = merge_options(
+        DynamixelOptions, [(str(path), profile.backend_options("dynamixel")), ("", flags)], plugin=PLUGIN
     )
+    if not options.joints:
+        raise InputFileError(path, "backends.dynamixel.joints: no servos configured")
+    return path, options
+
+
+def _bus(options: DynamixelOptions, names: list[str] | None = None):  # type: ignore[no-untyped-def]
+    from convodrive.backends.dynamixel import bus_motors, make_bus
+
+    motors = bus_motors(options, names)
+    bus = make_bus(options, motors)
     bus.connect()
     if not any(bus.ping(m.id) for m in motors):
         bus.disconnect()
@@ -144,20 +163,22 @@ def record_range(bus: Any, name: str, done: Callable[[], None], period: float = 
 
 def calibrate(
     config: str,
-    port: str | None = None,
+    flags: dict[str, Any] | None = None,
     joints: list[str] | None = None,
     output: str | None = None,
     done: Callable[[str], None] | None = None,
     say: Callable[[str], None] = print,
 ) -> dict[str, tuple[int, int]]:
-    """Record each joint's range with torque off and write min/max ticks into the profile."""
-    path, _, options = _profile(config)
-    names = joints or list(options["joints"])
-    unknown = sorted(set(names) - set(options["joints"]))
+    """Record each joint's range with torque off and write min/max ticks into the profile.
+    ``flags`` override the profile's bus options (``{"port": ...}``)."""
+    path, options = _profile(config, flags)
+    assert options.joints is not None
+    names = joints or list(options.joints)
+    unknown = sorted(set(names) - set(options.joints))
     if unknown:
         raise UserError(f"--joint: {', '.join(unknown)} not in backends.dynamixel.joints of {path}")
     wait = done or (lambda name: input())
-    bus = _bus(options, port)
+    bus = _bus(options)
     limits: dict[str, tuple[int, int]] = {}
     try:
         for name in names:
@@ -169,7 +190,7 @@ def calibrate(
             limits[name] = seen
             say(f"{name}: min_tick {seen[0]}, max_tick {seen[1]}")
     finally:
-        for name in options["joints"]:
+        for name in options.joints:
             bus.write("Torque_Enable", name, 0)
         bus.disconnect()
     if limits:
@@ -222,7 +243,7 @@ def set_joint_limits(text: str, backend: str, limits: dict[str, tuple[int, int]]
                 lines.insert(head + 1, " " * indent + f"{key}: {value}\n")
                 spans = {k: [j + (j > head) for j in v] for k, v in spans.items()}
     result = "".join(lines)
-    parsed = yaml.safe_load(result)
+    parsed = parse_yaml(result, path)
     for name, (lo, hi) in limits.items():
         got = parsed["backends"][backend]["joints"][name]
         if (got.get("min_tick"), got.get("max_tick")) != (lo, hi):
@@ -233,7 +254,7 @@ def set_joint_limits(text: str, backend: str, limits: dict[str, tuple[int, int]]
 def run_calibrate(args: argparse.Namespace) -> int:
     if not sys.stdin.isatty():
         print("note: stdin is not a terminal; each Enter is read from it", file=sys.stderr)
-    calibrate(args.config, args.port, args.joint, args.output)
+    calibrate(args.config, option_arguments(args, BUS_OPTIONS), args.joint, args.output)
     return 0
 
 
@@ -274,8 +295,8 @@ def run_monitor(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.live import Live
 
-    _, _, options = _profile(args.config)
-    bus = _bus(options, args.port)
+    _, options = _profile(args.config, option_arguments(args, BUS_OPTIONS))
+    bus = _bus(options)
     console = Console()
     try:
         if args.once:

@@ -3,26 +3,31 @@
 A generator turns dyadic audio chunks into canonical motion frames at 30 fps, streaming, with a
 declared look-ahead: frame k may depend on audio up to (k + lookahead_frames + 1) / 30 seconds.
 The same seed must give the same frames. ``stream`` keeps its state local to the call, so one
-generator can run several streams (takes) side by side.
+generator can run several streams (takes) side by side. A generator declares its options once, as
+the dataclass named by its ``Options`` attribute (``convodrive.plugins.options``); the constructor
+parses whatever it is given into that, so ``self.options`` is always typed and checked.
 """
 
 from __future__ import annotations
 
 import abc
 import itertools
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import Any, ClassVar
 
 from convodrive.audio.source import AudioChunk, DyadicAudio
 from convodrive.motion.clip import MotionClip, MotionFrame
+from convodrive.plugins.options import PluginOptions, coerce_options
 
 
 class Generator(abc.ABC):
     name: ClassVar[str] = ""
     description: ClassVar[str] = ""
+    Options: ClassVar[type[PluginOptions]] = PluginOptions
+    """The dataclass of this generator's options (the base class: none)."""
 
-    def __init__(self, options: dict[str, Any] | None = None) -> None:
-        self.options: dict[str, Any] = dict(options or {})
+    def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
+        self.options = coerce_options(self.Options, options, plugin=f"generator {self.name}")
 
     @property
     def lookahead_frames(self) -> int:

@@ -7,7 +7,8 @@ the audio outlasts the clip the last frame is held. Voice activity and state com
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+import dataclasses
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +20,7 @@ from convodrive.generators.base import Generator
 from convodrive.motion import rotations
 from convodrive.motion.channels import ConversationState
 from convodrive.motion.clip import MotionClip, MotionFrame
+from convodrive.plugins.options import PluginOptions, option
 from convodrive.plumbing.errors import InputFileError, UserError
 
 
@@ -37,14 +39,21 @@ def load_motion(path: str | Path) -> MotionClip:
     raise InputFileError(path, "not a motion file (replay reads convodrive .npz and .bvh)")
 
 
+@dataclasses.dataclass(frozen=True)
+class ReplayOptions(PluginOptions):
+    motion: Path | None = option(None, help="The motion file to play (.npz or .bvh); --motion sets it")
+
+
 class ReplayGenerator(Generator):
     name = "replay"
     description = "Play a recorded motion file (.npz or .bvh) in time with the audio"
+    Options = ReplayOptions
+    options: ReplayOptions
 
-    def __init__(self, options: dict[str, Any] | None = None) -> None:
+    def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
         super().__init__(options)
-        motion = self.options.get("motion")
-        if not motion:
+        motion = self.options.motion
+        if motion is None:
             raise UserError(
                 "generator 'replay' needs a motion file: pass --motion FILE (.npz or .bvh), "
                 "or set generator: {replay: {motion: FILE}} in the --config YAML"

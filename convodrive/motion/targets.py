@@ -8,6 +8,7 @@ renderer and the recorder speak canonical motion rather than joints.
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -29,6 +30,8 @@ class TargetSpec:
     max_velocity: np.ndarray  # units per second; inf where unlimited
     max_acceleration: np.ndarray  # units per second squared; inf where unlimited
     units: tuple[Unit, ...]
+    model: Path | None = None
+    """The body's MJCF, when its profile names one (what a simulator loads)."""
 
     def __post_init__(self) -> None:
         n = len(self.names)

@@ -5,6 +5,14 @@ know which"); the CLI calls it and nothing but the CLI imports it.
 """
 
 from convodrive.pipeline.config import RunConfig, load_run_config
-from convodrive.pipeline.run import DEFAULT_GENERATOR, DriveRequest, DriveResult, drive
+from convodrive.pipeline.run import DEFAULT_GENERATOR, MAX_SAMPLES, DriveRequest, DriveResult, drive
 
-__all__ = ["DEFAULT_GENERATOR", "DriveRequest", "DriveResult", "RunConfig", "drive", "load_run_config"]
+__all__ = [
+    "DEFAULT_GENERATOR",
+    "MAX_SAMPLES",
+    "DriveRequest",
+    "DriveResult",
+    "RunConfig",
+    "drive",
+    "load_run_config",
+]

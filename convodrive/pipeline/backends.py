@@ -1,22 +1,25 @@
 """Backends of a run: made with their merged options, opened, each paired with its retargeter.
 
 Which joint space a backend gets: a backend with no ``default_profile`` (render, record) takes
-canonical motion only. A robot backend uses the run config's profile when the config is one (it
-has ``joints``), else its own default profile from config/robots. Its options merge, lowest first:
-its profile's ``backends.<name>``, the run config's ``backends.<name>``, then the caller's.
+canonical motion only. A robot backend drives the profile its ``profile`` option names (from the
+run config or ``-B``), else the run config when that is a profile, else its own default profile.
+Its options merge, lowest first: its profile's ``backends.<name>``, the run config's
+``backends.<name>``, then the caller's (``-B``); each layer is checked against the backend's
+declared options and a mistake names the file it came from.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
 from convodrive.backends.base import Backend, Session
 from convodrive.motion.targets import TargetSpec
-from convodrive.pipeline.config import RunConfig
+from convodrive.pipeline.config import RunConfig, check_sections
 from convodrive.plugins import BACKEND_GROUP, load_plugin
+from convodrive.plugins.options import check_options, merge_options
 from convodrive.plumbing.errors import UserError
 from convodrive.scheduler import Route
 
@@ -31,23 +34,33 @@ class PlannedBackend:
 
 
 def make_backends(
-    names: Iterable[str], config: RunConfig, options_by_backend: dict[str, dict[str, Any]]
+    names: Iterable[str], config: RunConfig, options_by_backend: Mapping[str, Mapping[str, Any]]
 ) -> list[PlannedBackend]:
     """Instantiate each named backend with its merged options (a bad name or option is a UserError).
 
     Instances, not classes, say whether they are real-time: the renderer becomes one when its
     live window can open."""
+    names = list(dict.fromkeys(names))
+    stray = [n for n in options_by_backend if n not in names]
+    if stray:
+        raise UserError(f"-B {stray[0]}.…: backend '{stray[0]}' is not in this run (its backends: {', '.join(names)})")
     planned = []
-    for name in dict.fromkeys(names):
+    for name in names:
         cls: type[Backend] = load_plugin(BACKEND_GROUP, name)
-        profile = _profile_for(cls, config)
-        options: dict[str, Any] = {}
-        if profile is not None:
-            if profile.model_path is not None:
-                options["model"] = str(profile.model_path)  # the body a simulator loads
-            options.update(profile.backend_options(name))
-        options.update(config.backend_options(name))
-        options.update(options_by_backend.get(name, {}))
+        plugin = f"backend {name}"
+        config_layer = config.backend_options(name)
+        cli_layer = options_by_backend.get(name)
+        chosen = {
+            **check_options(cls.Options, config_layer, plugin=plugin, where=config.where),
+            **check_options(cls.Options, cli_layer, plugin=plugin),
+        }.get("profile")
+        profile = _profile_for(cls, config, chosen)
+        layers: list[tuple[str, Mapping[str, Any] | None]] = []
+        if profile is not None and profile is not config.profile:
+            check_sections(profile.sections, str(profile.path))
+            layers.append((str(profile.path), profile.backend_options(name)))
+        layers += [(config.where, config_layer), ("", cli_layer)]
+        options = merge_options(cls.Options, layers, plugin=plugin)
         planned.append(PlannedBackend(name, cls(options), profile))
     return planned
 
@@ -93,14 +106,14 @@ def close_all(routes: list[Route]) -> None:
             pass
 
 
-def _profile_for(cls: type[Backend], config: RunConfig) -> Any:
+def _profile_for(cls: type[Backend], config: RunConfig, chosen: str | None) -> Any:
+    """The profile a backend drives (see the module's docstring); None for canonical motion."""
     if cls.default_profile is None:
         return None
-    override = config.backend_options(cls.name).get("profile") if config.path else None
     from convodrive.retargeting import load_profile
 
-    if override:
-        return load_profile(override)
+    if chosen:
+        return load_profile(chosen)
     if config.profile is not None:
         return config.profile
     return load_profile(cls.default_profile)

@@ -14,10 +14,13 @@ from convodrive.generators.base import Generator, take_seed
 from convodrive.pipeline.backends import close_all, make_backends, open_backends, safe_outputs
 from convodrive.pipeline.config import load_run_config
 from convodrive.plugins import GENERATOR_GROUP, load_plugin
+from convodrive.plugins.options import merge_options
 from convodrive.plumbing.errors import UserError
 from convodrive.scheduler import MonotonicClock, Scheduler, SimulatedClock, build_report, write_report
 
 DEFAULT_GENERATOR = "procedural"
+MAX_SAMPLES = 16
+"""Most takes one run generates: each take costs generator time and the renderer's grid space."""
 
 
 @dataclasses.dataclass
@@ -25,7 +28,8 @@ class DriveRequest:
     audio: Path
     generator: str = DEFAULT_GENERATOR
     backends: tuple[str, ...] = ("record",)
-    config: Path | None = None
+    config: str | Path | None = None
+    """A run config or robot profile: a YAML path or a bundled profile's name."""
     out_dir: Path = Path("convodrive-out")
     seed: int = 0
     samples: int = 1
@@ -51,13 +55,20 @@ def drive(
     on_start: Callable[[bool], None] | None = None,
 ) -> DriveResult:
     """Run one session end to end and write its report. ``UserError`` for any user mistake."""
-    if request.samples < 1:
-        raise UserError(f"--samples must be at least 1, got {request.samples}")
+    if not 1 <= request.samples <= MAX_SAMPLES:
+        raise UserError(f"--samples must be between 1 and {MAX_SAMPLES}, got {request.samples}")
     if not request.backends:
         raise UserError("name at least one backend with --backend")
     source = AudioSource(request.audio, request.channels)
     config = load_run_config(request.config)
     planned = make_backends(request.backends, config, request.backend_options)
+    gen_cls: type[Generator] = load_plugin(GENERATOR_GROUP, request.generator)
+    gen_options = merge_options(
+        gen_cls.Options,
+        [(config.where, config.generator_options(request.generator)), ("", request.generator_options)],
+        plugin=f"generator {request.generator}",
+    )
+    generator: Generator = gen_cls(gen_options)
     realtime = request.realtime if request.realtime is not None else any(p.backend.realtime for p in planned)
     out_dir = Path(request.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -72,9 +83,6 @@ def drive(
         num_samples=request.samples,
     )
 
-    gen_cls = load_plugin(GENERATOR_GROUP, request.generator)
-    gen_options = {**config.generator_options(request.generator), **request.generator_options}
-    generator: Generator = gen_cls(gen_options)
     seeds = [take_seed(request.seed, i) for i in range(request.samples)]
     # Real time reads audio in 100 ms chunks (the streaming latency); offline in 1 s chunks, which
     # gives the same frames (generators are chunk-invariant) with less per-chunk overhead.
@@ -116,7 +124,7 @@ def drive(
             "seed": request.seed,
             "samples": request.samples,
             "lookahead_frames": generator.lookahead_frames,
-            "options": gen_options,
+            "options": gen_options.as_dict(),
         },
         "config": str(request.config) if request.config else None,
         "outputs": [str(p) for p in outputs],

@@ -7,6 +7,19 @@ from convodrive.plugins.registry import (
     list_plugins,
     load_plugin,
     missing_modules,
+    plugin_kind,
+    plugin_names,
+    unknown_plugin,
 )
 
-__all__ = ["BACKEND_GROUP", "GENERATOR_GROUP", "PluginInfo", "list_plugins", "load_plugin", "missing_modules"]
+__all__ = [
+    "BACKEND_GROUP",
+    "GENERATOR_GROUP",
+    "PluginInfo",
+    "list_plugins",
+    "load_plugin",
+    "missing_modules",
+    "plugin_kind",
+    "plugin_names",
+    "unknown_plugin",
+]

@@ -1,39 +1,75 @@
-"""Plugin options, declared once (DESIGN, "Plugins"): type, default, range and help in one place.
+"""Plugin options, declared once: type, default, range and help in one place.
 
 A plugin declares its options as a frozen dataclass of ``option(...)`` fields and names it in its
-``Options`` class attribute. The CLI (``-G``/``-B``), YAML sections, robot profiles and
-``convodrive plugins NAME`` all read that one declaration:
+``Options`` class attribute; the Generator and Backend base classes parse what they are given into
+that dataclass, so a plugin only ever sees a typed, checked object:
 
     @dataclasses.dataclass(frozen=True)
     class RenderOptions(PluginOptions):
         camera: str = option("upper", choices=("full", "upper", "face"), help="Which camera frames the avatar.")
         fps_limit: float = option(30.0, low=1, high=120, help="...")
 
-``parse_options`` turns a raw mapping into an instance, or raises one ``UserError`` line that names
-the plugin, the key, the problem and, for a typo, the option meant. Numbers must be finite, counts
-and sizes are bounded, and a value is never echoed longer than a line.
+The command line (``-G``/``-B``, or flags made by ``add_option_arguments``), YAML sections, robot
+profiles and ``convodrive plugins NAME`` all read that one declaration. Values arrive in layers
+(a profile, a run config, the command line); ``merge_options`` checks each layer on its own, so a
+bad value is one ``UserError`` line naming the file it came from, the plugin, the key and the
+problem, with the option meant when the key is a typo. Numbers must be finite unless declared
+``infinite``, counts, sizes, lists and text are bounded, nested settings (a servo per joint) are
+dataclasses of their own, checked the same way, and a value is never echoed longer than a line.
+Checks that involve several options live in the dataclass's ``__post_init__``, which raises
+``ValueError`` with the problem.
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import difflib
 import math
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
 from convodrive.plumbing.errors import UserError
+from convodrive.plumbing.safe_yaml import number_text, parse_scalar
 from convodrive.plumbing.text import clip_value
 
 T = TypeVar("T", bound="PluginOptions")
 
+MAX_ITEMS = 1024
+"""Longest list or mapping an option takes unless it declares ``max_items``."""
+MAX_CHARS = 4096
+"""Longest text an option takes."""
+
+
+class _Required:
+    def __repr__(self) -> str:
+        return "required"
+
+
+REQUIRED: Any = _Required()
+"""The default of an option that has none: the user must give it (put such fields first)."""
+
 
 @dataclasses.dataclass(frozen=True)
 class PluginOptions:
-    """Base of every plugin's options dataclass. Subclasses add ``option(...)`` fields only."""
+    """Base of every plugin's options dataclass; on its own, the options of a plugin that has none."""
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain JSON-able values (paths as text), for run reports."""
+        return {k: _plain(v) for k, v in dataclasses.asdict(self).items()}
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
 
 
 def option(
@@ -44,12 +80,14 @@ def option(
     high: float | None = None,
     choices: tuple[Any, ...] | None = None,
     infinite: bool = False,
-    max_items: int = 1024,
+    max_items: int = MAX_ITEMS,
 ) -> Any:
-    """One declared option: ``default`` and its ``help`` text. ``low``/``high`` bound a number (or
-    each number of a list), ``choices`` lists the allowed values, ``infinite`` admits ±inf, and
-    ``max_items`` bounds the length of a list."""
+    """One declared option: ``default`` (or ``REQUIRED``) and its ``help`` text. ``low``/``high``
+    bound a number (or each number of a list), ``choices`` lists the allowed values, ``infinite``
+    admits ±inf, and ``max_items`` bounds the length of a list or mapping."""
     meta = {"help": help, "low": low, "high": high, "choices": choices, "infinite": infinite, "max_items": max_items}
+    if default is REQUIRED:
+        return dataclasses.field(metadata=meta)
     if isinstance(default, (list, dict)):
         return dataclasses.field(default_factory=lambda: _copy(default), metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -63,55 +101,33 @@ def _copy(value: Any) -> Any:
     return value
 
 
-@dataclasses.dataclass(frozen=True)
-class OptionInfo:
-    """What ``convodrive plugins NAME`` prints for one option."""
-
-    name: str
-    type: str
-    default: Any
-    help: str
-    low: float | None
-    high: float | None
-    choices: tuple[Any, ...] | None
-
-    def describe(self) -> str:
-        bounds = ""
-        if self.choices:
-            bounds = " one of " + ", ".join(str(c) for c in self.choices)
-        elif self.low is not None or self.high is not None:
-            lo = "" if self.low is None else f"{self.low:g}"
-            hi = "" if self.high is None else f"{self.high:g}"
-            bounds = f" in [{lo}, {hi}]"
-        return f"{self.name} ({self.type}{bounds}, default {self.default!r}): {self.help}"
-
-
-def describe_options(cls: type[PluginOptions]) -> list[OptionInfo]:
-    hints = typing.get_type_hints(cls)
-    infos = []
-    for f in dataclasses.fields(cls):
-        factory = typing.cast(typing.Callable[[], Any], f.default_factory)
-        default = f.default if f.default is not dataclasses.MISSING else factory()
-        m = f.metadata
-        infos.append(
-            OptionInfo(
-                f.name,
-                _type_name(hints[f.name]),
-                default,
-                m.get("help", ""),
-                m.get("low"),
-                m.get("high"),
-                m.get("choices"),
-            )
-        )
-    return infos
-
-
+# ------------------------------------------------------------------------------------ parsing
 def parse_options(cls: type[T], raw: Mapping[str, Any] | None, *, plugin: str, where: str = "") -> T:
     """Validate ``raw`` against ``cls`` and fill the defaults. ``plugin`` names it for messages
     ("backend dynamixel"); ``where`` names the file the values came from, when they came from one."""
-    values = check_options(cls, raw, plugin=plugin, where=where)
-    return cls(**values)
+    return merge_options(cls, [(where, raw)], plugin=plugin)
+
+
+def merge_options(cls: type[T], layers: Iterable[tuple[str, Mapping[str, Any] | None]], *, plugin: str) -> T:
+    """Options from layers, lowest first (a profile, a run config, the command line): each layer is
+    checked on its own and names its own file; a later layer replaces an option of an earlier one."""
+    merged: dict[str, Any] = {}
+    sources: list[str] = []
+    for where, raw in layers:
+        values = check_options(cls, raw, plugin=plugin, where=where)
+        merged.update(values)
+        if values and where and where not in sources:
+            sources.append(where)
+    return _build(cls, merged, ", ".join(sources), plugin, "")
+
+
+def coerce_options(cls: type[T], options: T | Mapping[str, Any] | None, *, plugin: str) -> T:
+    """What a plugin's constructor was given, as its options: already parsed, or a raw mapping."""
+    if isinstance(options, cls):
+        return options
+    if isinstance(options, PluginOptions):
+        raise TypeError(f"{plugin} takes {cls.__name__}, not {type(options).__name__}")  # a programming error
+    return parse_options(cls, options, plugin=plugin)
 
 
 def check_options(
@@ -119,20 +135,39 @@ def check_options(
 ) -> dict[str, Any]:
     """Validate a partial mapping (one layer of a merge: a profile, a config file, the command
     line) and return it with values converted to their declared types."""
-    label = f"{where}: {plugin}" if where else plugin
+    prefix = f"{where}: {plugin}" if where else plugin
     if raw is None:
         return {}
+    return _check(cls, raw, prefix, "")
+
+
+def _check(cls: type[PluginOptions], raw: Any, prefix: str, path: str) -> dict[str, Any]:
     if not isinstance(raw, Mapping):
-        raise UserError(f"{label}: options must be a mapping of names to values, got {clip_value(raw)}")
+        what = f"option '{path}'" if path else "options"
+        raise UserError(f"{prefix}: {what} must be a mapping of names to values, got {clip_value(raw)}")
     fields = {f.name: f for f in dataclasses.fields(cls)}
     hints = typing.get_type_hints(cls)
     out: dict[str, Any] = {}
     for key, value in raw.items():
+        key_path = f"{path}.{key}" if path else str(key)
         if key not in fields:
-            raise UserError(f"{label}: unknown option {clip_value(key)}{_did_you_mean(str(key), fields)}")
+            raise UserError(f"{prefix}: unknown option {clip_value(key_path)}{_did_you_mean(str(key), fields)}")
         f = fields[key]
-        out[key] = _convert(value, hints[key], f.metadata, f"{label}: option '{key}'")
+        out[key] = _convert(value, hints[key], f.metadata, prefix, key_path)
     return out
+
+
+def _build(cls: type[T], values: dict[str, Any], where: str, plugin: str, path: str) -> T:
+    prefix = f"{where}: {plugin}" if where else plugin
+    for f in dataclasses.fields(cls):
+        if f.name not in values and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            key_path = f"{path}.{f.name}" if path else f.name
+            raise UserError(f"{prefix}: option '{key_path}' is required ({f.metadata.get('help', '')})")
+    try:
+        return cls(**values)
+    except ValueError as exc:  # a check across options, from the dataclass's __post_init__
+        at = f"option '{path}': " if path else ""
+        raise UserError(f"{prefix}: {at}{exc}") from None
 
 
 def _did_you_mean(key: str, fields: Mapping[str, Any]) -> str:
@@ -142,7 +177,8 @@ def _did_you_mean(key: str, fields: Mapping[str, Any]) -> str:
     return f" (known: {', '.join(fields)})" if fields else " (it takes no options)"
 
 
-def _convert(value: Any, hint: Any, meta: Mapping[str, Any], label: str) -> Any:
+def _convert(value: Any, hint: Any, meta: Mapping[str, Any], prefix: str, path: str) -> Any:
+    label = f"{prefix}: option '{path}'"
     origin = typing.get_origin(hint)
     args = typing.get_args(hint)
     if origin in (typing.Union, types.UnionType):
@@ -150,17 +186,21 @@ def _convert(value: Any, hint: Any, meta: Mapping[str, Any], label: str) -> Any:
             return None
         inner = [a for a in args if a is not type(None)]
         if len(inner) == 1:
-            return _convert(value, inner[0], meta, label)
+            return _convert(value, inner[0], meta, prefix, path)
         for candidate in inner:  # the first type the value fits
             try:
-                return _convert(value, candidate, meta, label)
+                return _convert(value, candidate, meta, prefix, path)
             except UserError:
                 continue
         raise UserError(f"{label} must be {' or '.join(_type_name(a) for a in inner)}, got {clip_value(value)}")
+    if isinstance(hint, type) and issubclass(hint, PluginOptions):
+        return _build(hint, _check(hint, value, prefix, path), "", prefix, path)
     if hint is bool:
         if not isinstance(value, bool):
             raise UserError(f"{label} must be true or false, got {clip_value(value)}")
         return value
+    if hint in (int, float):
+        value = number_text(value)
     if hint is int:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not float(value).is_integer():
             raise UserError(f"{label} must be a whole number, got {clip_value(value)}")
@@ -175,35 +215,64 @@ def _convert(value: Any, hint: Any, meta: Mapping[str, Any], label: str) -> Any:
     if hint is str:
         if not isinstance(value, (str, int, float)) or isinstance(value, bool):
             raise UserError(f"{label} must be text, got {clip_value(value)}")
-        return _chosen(str(value), meta, label)
+        return _chosen(_short(str(value), label), meta, label)
     if hint is Path:
         if not isinstance(value, (str, Path)) or not str(value):
             raise UserError(f"{label} must be a file path, got {clip_value(value)}")
-        return Path(value)
+        return Path(_short(str(value), label))
     if origin in (list, tuple) or hint in (list, tuple):
         if not isinstance(value, (list, tuple)):
             raise UserError(f"{label} must be a list, got {clip_value(value)}")
-        if len(value) > meta.get("max_items", 1024):
-            raise UserError(f"{label} may hold at most {meta.get('max_items', 1024)} items, got {len(value)}")
+        _count(value, meta, label)
         item = args[0] if args else Any
-        items = [v if item is Any else _convert(v, item, meta, f"{label} item") for v in value]
+        items = [v if item is Any else _convert(v, item, meta, prefix, f"{path}[{i}]") for i, v in enumerate(value)]
         return items if origin is list or hint is list else tuple(items)
     if origin is dict or hint is dict:
         if not isinstance(value, Mapping):
             raise UserError(f"{label} must be a mapping, got {clip_value(value)}")
-        return dict(value)
+        _count(value, meta, label)
+        item = args[1] if len(args) == 2 else Any
+        out = {}
+        for k, v in value.items():
+            if not isinstance(k, str):
+                raise UserError(f"{label} must be keyed by names, got the key {clip_value(k)}")
+            out[k] = v if item is Any else _convert(v, item, meta, prefix, f"{path}.{k}")
+        return out
     if hint is Any:
         return value
     raise TypeError(f"{label}: unsupported option type {hint!r}")  # a plugin author's mistake
 
 
+def _short(text: str, label: str) -> str:
+    if len(text) > MAX_CHARS:
+        raise UserError(f"{label} must be at most {MAX_CHARS} characters, got {len(text)}")
+    return text
+
+
+def _count(value: Sequence[Any] | Mapping[Any, Any], meta: Mapping[str, Any], label: str) -> None:
+    limit = meta.get("max_items", MAX_ITEMS)
+    if len(value) > limit:
+        raise UserError(f"{label} may hold at most {limit} items, got {len(value)}")
+
+
 def _bounded(number: float, meta: Mapping[str, Any], label: str) -> Any:
     low, high = meta.get("low"), meta.get("high")
     if (low is not None and number < low) or (high is not None and number > high):
-        lo = "-inf" if low is None else f"{low:g}"
-        hi = "inf" if high is None else f"{high:g}"
-        raise UserError(f"{label} must be between {lo} and {hi}, got {clip_value(number)}")
+        raise UserError(f"{label} must be {_range_text(low, high)}, got {clip_value(number)}")
     return _chosen(number, meta, label)
+
+
+def _range_text(low: float | None, high: float | None) -> str:
+    if low is not None and high is not None:
+        return f"between {_number(low)} and {_number(high)}"
+    return f"at least {_number(low)}" if low is not None else f"at most {_number(high)}"
+
+
+def _number(x: float | None) -> str:
+    """``4500000`` rather than ``4.5e+06``; ``0.05`` as itself."""
+    if x is None:
+        return ""
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else f"{x:g}"
 
 
 def _chosen(value: Any, meta: Mapping[str, Any], label: str) -> Any:
@@ -215,13 +284,148 @@ def _chosen(value: Any, meta: Mapping[str, Any], label: str) -> Any:
     return value
 
 
+# ------------------------------------------------------------------------------------ describing
+@dataclasses.dataclass(frozen=True)
+class OptionInfo:
+    """What ``convodrive plugins NAME`` prints for one option; nested settings are listed as
+    ``joints.NAME.id``."""
+
+    name: str
+    type: str
+    default: Any
+    help: str
+    low: float | None = None
+    high: float | None = None
+    choices: tuple[Any, ...] | None = None
+
+    @property
+    def required(self) -> bool:
+        return self.default is REQUIRED
+
+    def bounds(self) -> str:
+        if self.choices:
+            return "one of " + ", ".join(_show(c) for c in self.choices)
+        if self.low is not None or self.high is not None:
+            return _range_text(self.low, self.high).replace("between", "from").replace(" and ", " to ")
+        return ""
+
+    def kind(self) -> str:
+        """``int, from 16 to 4096``: the type and what it admits."""
+        bounds = self.bounds()
+        return f"{self.type}, {bounds}" if bounds else self.type
+
+    def default_text(self) -> str:
+        return "required" if self.required else _show(self.default)
+
+    def describe(self) -> str:
+        default = "required" if self.required else f"default {self.default_text()}"
+        return f"{self.name} ({self.kind()}; {default}): {self.help}"
+
+
+def _show(value: Any) -> str:
+    if value is None:
+        return "null"
+    if value == "":
+        return '""'
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, float) and math.isinf(value):
+        return "inf" if value > 0 else "-inf"
+    if isinstance(value, (dict, list)) and not value:
+        return "{}" if isinstance(value, dict) else "[]"
+    return str(value) if isinstance(value, (int, float, str)) else clip_value(value)
+
+
+def describe_options(cls: type[PluginOptions], prefix: str = "") -> list[OptionInfo]:
+    hints = typing.get_type_hints(cls)
+    infos = []
+    for f in dataclasses.fields(cls):
+        if f.default is not dataclasses.MISSING:
+            default = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            default = f.default_factory()
+        else:
+            default = REQUIRED
+        m = f.metadata
+        name = prefix + f.name
+        hint = hints[f.name]
+        infos.append(
+            OptionInfo(
+                name, _type_name(hint), default, m.get("help", ""), m.get("low"), m.get("high"), m.get("choices")
+            )
+        )
+        nested = _nested(hint)
+        if nested is not None:
+            infos += describe_options(nested, f"{name}.NAME." if _is_mapping(hint) else f"{name}.")
+    return infos
+
+
+def _nested(hint: Any) -> type[PluginOptions] | None:
+    """The options dataclass inside ``hint`` (``X``, ``X | None``, ``dict[str, X]``), if any."""
+    for candidate in (hint, *typing.get_args(hint)):
+        if isinstance(candidate, type) and issubclass(candidate, PluginOptions):
+            return candidate
+        if typing.get_origin(candidate) is dict:
+            return _nested(typing.get_args(candidate)[1])
+    return None
+
+
+def _is_mapping(hint: Any) -> bool:
+    return any(typing.get_origin(c) is dict for c in (hint, *typing.get_args(hint)))
+
+
 def _type_name(hint: Any) -> str:
     origin = typing.get_origin(hint)
     if origin in (typing.Union, types.UnionType):
-        return " or ".join(_type_name(a) for a in typing.get_args(hint) if a is not type(None)) + " or null"
-    names = {bool: "bool", int: "int", float: "float", str: "text", Path: "path", list: "list", dict: "mapping"}
-    if hint in names:
-        return names[hint]
-    if origin in names:
-        return names[origin]
+        names = [_type_name(a) for a in typing.get_args(hint) if a is not type(None)]
+        return " or ".join(names) + (" or null" if type(None) in typing.get_args(hint) else "")
+    if isinstance(hint, type) and issubclass(hint, PluginOptions):
+        return "settings"
+    simple = {bool: "bool", int: "int", float: "float", str: "text", Path: "path", list: "list", dict: "mapping"}
+    if origin is dict:
+        return f"mapping of name to {_type_name(typing.get_args(hint)[1])}"
+    if origin in (list, tuple) and typing.get_args(hint):
+        return f"list of {_type_name(typing.get_args(hint)[0])}"
+    if hint in simple:
+        return simple[hint]
+    if origin in simple:
+        return simple[origin]
     return getattr(hint, "__name__", str(hint))
+
+
+# ------------------------------------------------------------------------------------ flags
+def add_option_arguments(parser: argparse.ArgumentParser, cls: type[PluginOptions], names: Sequence[str]) -> None:
+    """Command-line flags (``--latency-ms``) for some of a plugin's options, with the declared help.
+    Their values stay unset unless given, so a profile's values apply; read them with
+    ``option_arguments`` and merge them as the top layer."""
+    infos = {i.name: i for i in describe_options(cls)}
+    for name in names:
+        info = infos[name]
+        bounds = info.bounds()
+        text = f"{info.help} ({info.type}{', ' + bounds if bounds else ''})"
+        flag = "--" + name.replace("_", "-")
+        if info.type == "bool":
+            parser.add_argument(flag, dest=name, default=None, action=argparse.BooleanOptionalAction, help=text)
+        else:
+            parser.add_argument(flag, dest=name, default=None, metavar=name.upper(), help=text)
+
+
+def option_arguments(args: argparse.Namespace, names: Sequence[str]) -> dict[str, Any]:
+    """The flags of ``add_option_arguments`` that were given, as a layer for ``merge_options``."""
+    out = {}
+    for name in names:
+        value = getattr(args, name, None)
+        if value is not None:
+            out[name] = parse_scalar(value) if isinstance(value, str) else value
+    return out
+
+
+# ------------------------------------------------------------------------------------ shared checks
+def check_file_name(key: str, value: str, suffix: str = "") -> None:
+    """For ``__post_init__``: ``value`` must be a plain file name (no folder), ending in ``suffix``."""
+    if not value or "/" in value or "\\" in value or value.startswith(".") or len(value) > 255:
+        raise ValueError(f"option '{key}' must be a plain file name, got {clip_value(value)}")
+    if suffix and not value.lower().endswith(suffix):
+        raise ValueError(f"option '{key}' must end in {suffix}, got {clip_value(value)}")

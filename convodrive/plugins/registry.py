@@ -8,11 +8,13 @@ pyproject.toml, so there is one mechanism for all.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import importlib.util
 from importlib.metadata import EntryPoint, entry_points
 from typing import Any
 
 from convodrive.plumbing.errors import UserError
+from convodrive.plumbing.text import clip_value
 
 GENERATOR_GROUP = "convodrive.generators"
 BACKEND_GROUP = "convodrive.backends"
@@ -32,13 +34,28 @@ def _entry_points(group: str) -> dict[str, EntryPoint]:
     return {ep.name: ep for ep in entry_points(group=group)}
 
 
+def plugin_kind(group: str) -> str:
+    return "generator" if group == GENERATOR_GROUP else "backend"
+
+
+def plugin_names(group: str) -> list[str]:
+    return sorted(_entry_points(group))
+
+
+def unknown_plugin(group: str, name: str) -> str:
+    """ "unknown backend 'mujco' (did you mean 'mujoco'?)", or the list of those installed."""
+    names = plugin_names(group)
+    close = difflib.get_close_matches(str(name), names, n=1, cutoff=0.6)
+    hint = f"did you mean '{close[0]}'?" if close else f"available: {', '.join(names) or 'none installed'}"
+    return f"unknown {plugin_kind(group)} {clip_value(name)} ({hint})"
+
+
 def load_plugin(group: str, name: str) -> type:
     """The plugin class named ``name``; ``UserError`` if it is unknown or cannot be imported."""
     eps = _entry_points(group)
-    kind = "generator" if group == GENERATOR_GROUP else "backend"
+    kind = plugin_kind(group)
     if name not in eps:
-        known = ", ".join(sorted(eps)) or "none installed"
-        raise UserError(f"unknown {kind} '{name}' (available: {known})")
+        raise UserError(unknown_plugin(group, name))
     try:
         cls = eps[name].load()
     except ImportError as exc:

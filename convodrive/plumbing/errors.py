@@ -19,3 +19,9 @@ class InputFileError(UserError):
         self.path = str(path)
         self.problem = problem
         super().__init__(f"{path}: {problem}")
+
+
+def os_reason(exc: OSError) -> str:
+    """``permission denied`` rather than ``[Errno 13] Permission denied: '/x'``, for one-line messages."""
+    reason = exc.strerror or exc.__class__.__name__
+    return reason[:1].lower() + reason[1:]

@@ -88,3 +88,26 @@ def test_plugin_with_a_missing_dependency_is_named_not_crashed(
     )
     assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1
     assert "convodrive_no_such_module" in out.stderr and "convodrive[imaginary]" in out.stderr
+
+
+def test_a_third_party_plugin_declares_options_the_same_way(
+    plugin_site: Path, tone_dialogue: Path, tmp_path: Path
+) -> None:
+    env = {"PYTHONPATH": str(plugin_site)}
+    listing = run_cli("plugins", "tiny_nod", env=env)
+    assert listing.returncode == 0, listing.stderr
+    assert "amplitude" in listing.stdout and "float, from 0 to 0.5; default 0.2" in listing.stdout
+    out = run_cli(
+        "drive", str(tone_dialogue), "--generator", "tiny_nod", "--backend", "tiny_log",
+        "-G", "amplitude=0.1", "-B", "tiny_log.filename=pitch.json", "--out", str(tmp_path / "run"), env=env,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert max(json.loads((tmp_path / "run" / "pitch.json").read_text())) == pytest.approx(0.1, abs=0.01)
+    typo = run_cli(
+        "drive", str(tone_dialogue), "--generator", "tiny_nod", "--backend", "tiny_log",
+        "-G", "amplitud=0.1", "--out", str(tmp_path / "bad"), env=env,
+    )  # fmt: skip
+    assert typo.returncode == 2
+    assert typo.stderr.strip() == (
+        "convodrive: error: generator tiny_nod: unknown option 'amplitud' (did you mean 'amplitude'?)"
+    )

@@ -64,7 +64,7 @@ def test_calibrate_writes_ranges_back_and_keeps_the_rest(tmp_path: Path) -> None
                 time.sleep(0.15 if tick in (lo, hi) else 0.01)  # a person lingers at the end stops
 
         limits = calibrate(
-            str(profile), port=emu.port, joints=["neck_pan", "jaw"], done=user_moves, say=lambda text: None
+            str(profile), {"port": emu.port}, joints=["neck_pan", "jaw"], done=user_moves, say=lambda text: None
         )
         torque = [emu.servo(i).torque for i in range(1, 8)]
     assert limits == sweeps and not any(torque)

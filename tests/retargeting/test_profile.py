@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from convodrive.plumbing.errors import InputFileError, UserError
+from convodrive.plumbing.safe_yaml import load_yaml_file
 from convodrive.retargeting import RobotProfile, load_profile
 
 GOOD = """
@@ -118,3 +119,45 @@ def test_humanoid_profile_drives_every_actuated_joint():
             model.jnt_range[jid][0] <= profile.spec.lower[i] + 1e-6
             and profile.spec.upper[i] <= model.jnt_range[jid][1] + 1e-6
         )
+
+
+@pytest.mark.parametrize(
+    "old, new, key, problem",
+    [
+        # defect 7: an infinite gain or weight passed, then every frame was refused and the head never moved
+        ("limits: [0, 0.4]", "limits: [0, 0.4]\n    gain: .inf", "joints.jaw.gain", "must be a finite number"),
+        ("limits: [0, 0.4]", "limits: [0, 0.4]\n    gain: 1e300", "joints.jaw.gain", "at most 1e+06 in size"),
+        ("axis: 0}", "axis: 0, weight: .inf}", "joints.pan.source.weight", "must be a finite number"),
+        ("axis: 0}", "axis: 0, weight: inf}", "joints.pan.source.weight", "must be a number"),
+        ("[1, 0.4]]", "[1, .nan]]", "joints.jaw.source.map[1][1]", "must be a finite number"),
+        ("limits: [0, 0.4]", "limits: [0, .inf]", "joints.jaw.limits[1]", "must be a finite number"),
+        ("limits: [0, 0.4]", "limits: [0, 0.4]\n    offset: -.inf", "joints.jaw.offset", "must be a finite number"),
+        ("limits: [0, 0.4]", "limits: [0, 0.4]\n    max_velocity: -.inf", "joints.jaw.max_velocity", "finite"),
+        # defect 11: a repeated key or joint silently replaced the first
+        ("  jaw:\n", "  pan:\n", "line 7", "duplicate key 'pan' (first at line 4)"),
+        ("limits: [0, 0.4]", "limits: [0, 0.4]\n    limits: [0, 0.3]", "line 9", "duplicate key 'limits'"),
+        ("limits: [0, 0.4]", "limits: [0, 0.4]\n    gian: 2", "joints.jaw.gian", "did you mean 'gain'?"),
+    ],
+)
+def test_numbers_are_finite_and_keys_unique(tmp_path, old, new, key, problem):
+    assert old in GOOD
+    path = write(tmp_path, GOOD.replace(old, new))
+    with pytest.raises(InputFileError) as info:
+        load_profile(path)
+    message = str(info.value)
+    assert "\n" not in message and message.startswith(str(path))
+    assert key in message and problem in message, message
+
+
+def test_unlimited_velocity_is_still_allowed(tmp_path):
+    path = write(tmp_path, GOOD.replace("limits: [0, 0.4]", "limits: [0, 0.4]\n    max_velocity: .inf"))
+    assert load_profile(path).spec.max_velocity[1] == np.inf
+
+
+def test_ik_joint_listed_twice_is_refused():
+    data = load_profile("gymnasium_humanoid")
+    assert data.ik is not None
+    raw = load_yaml_file(data.path)
+    raw["ik"]["joints"].append(raw["ik"]["joints"][0])
+    with pytest.raises(InputFileError, match=r"ik.joints\[\d+\]: joint '.+' is listed twice"):
+        RobotProfile.from_dict(raw, data.path)

@@ -9,7 +9,6 @@ randomness indexed by absolute frame and seed), so streaming equals offline gene
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, Sequence
-from typing import Any
 
 import numpy as np
 
@@ -35,9 +34,8 @@ class ProceduralGenerator(Generator):
         "beat gestures); no weights needed"
     )
 
-    def __init__(self, options: dict[str, Any] | None = None) -> None:
-        super().__init__(options)
-        self.settings = ProceduralOptions.from_dict(self.options)
+    Options = ProceduralOptions
+    options: ProceduralOptions
 
     @property
     def lookahead_frames(self) -> int:
@@ -51,7 +49,7 @@ class ProceduralGenerator(Generator):
     def stream_takes(self, chunks: Iterable[AudioChunk], seeds: Sequence[int]) -> Iterator[tuple[MotionFrame, ...]]:
         """Analyse the audio once (the analysis ignores the seed) and synthesise every take from it."""
         analyzer = self._analyzer()
-        synths = [_Synth(self.settings, s) for s in seeds]
+        synths = [_Synth(self.options, s) for s in seeds]
         received = 0
         try:
             for chunk in chunks:
@@ -71,7 +69,7 @@ class ProceduralGenerator(Generator):
         clips = []
         for i in range(num_samples):
             s = take_seed(seed, i)
-            arrays = _Synth(self.settings, s)(features)
+            arrays = _Synth(self.options, s)(features)
             clips.append(
                 MotionClip(
                     pose=arrays["pose"],
@@ -83,7 +81,7 @@ class ProceduralGenerator(Generator):
                         "generator": self.name,
                         "seed": s,
                         "take": i,
-                        "phones": bool(self.settings.phones and pocketsphinx_available()),
+                        "phones": bool(self.options.phones and pocketsphinx_available()),
                     },
                 )
             )
@@ -98,8 +96,8 @@ class ProceduralGenerator(Generator):
         return FrameBatch.concat([p for p in parts if p is not None])
 
     def _analyzer(self) -> DyadicAnalyzer:
-        params = VoiceParams(vad_on_db=self.settings.vad_on_db, vad_off_db=self.settings.vad_off_db)
-        return DyadicAnalyzer(params, phones=self.settings.phones and pocketsphinx_available())
+        params = VoiceParams(vad_on_db=self.options.vad_on_db, vad_off_db=self.options.vad_off_db)
+        return DyadicAnalyzer(params, phones=self.options.phones and pocketsphinx_available())
 
 
 class _Synth:
