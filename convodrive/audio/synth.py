@@ -136,14 +136,10 @@ def synthesize_dialogue(
         timings.append(TurnTiming(turn.speaker, turn.text, turn.voice, turn.rate, start, end))
         cursor = end
     total = int(round((max(t.end for t in timings) + tail) * sample_rate))
-    stereo = np.zeros((total, 2), np.float32)
-    for speaker, offset, audio in clips:
-        stereo[offset : offset + len(audio), speaker] += audio
-    if noise_level > 0:
-        stereo += np.random.default_rng(seed).normal(0.0, noise_level, stereo.shape).astype(np.float32)
+    stereo = mix_voices(clips, total, seed=seed, noise_level=noise_level)
     path = Path(path)
     with atomic_path(path) as tmp:
-        sf.write(tmp, np.clip(stereo, -1.0, 1.0), sample_rate, subtype="PCM_16", format="WAV")
+        sf.write(tmp, stereo, sample_rate, subtype="PCM_16", format="WAV")
     return DialogueInfo(path, sample_rate, total / sample_rate, tuple(timings))
 
 
@@ -177,3 +173,17 @@ def add_bleed(
         np.clip(self_voice + gain * into_self, -1, 1).astype(np.float32),
         np.clip(other_voice + gain * into_other, -1, 1).astype(np.float32),
     )
+
+
+def mix_voices(
+    placed: Sequence[tuple[int, int, np.ndarray]], num_samples: int, seed: int = 0, noise_level: float = 1e-3
+) -> np.ndarray:
+    """(num_samples, 2) float32 in [-1, 1]: each ``(channel, offset, audio)`` added at its sample
+    offset (cut at the end), plus a seeded noise floor of RMS ``noise_level`` (0: none)."""
+    stereo = np.zeros((num_samples, 2), np.float32)
+    for channel, offset, audio in placed:
+        piece = audio[: max(0, num_samples - offset)]
+        stereo[offset : offset + len(piece), channel] += piece
+    if noise_level > 0:
+        stereo += np.random.default_rng(seed).normal(0.0, noise_level, stereo.shape).astype(np.float32)
+    return np.clip(stereo, -1.0, 1.0)

@@ -12,6 +12,7 @@ import json
 from collections import Counter
 from pathlib import Path
 
+from convodrive.cli.options import int_in, number_in
 from convodrive.cli.progress import frame_progress
 from convodrive.corpus.manifest import SPLITS
 from convodrive.corpus.reader import Corpus
@@ -23,6 +24,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     sub = p.add_subparsers(dest="corpus_command", metavar="WHAT", parser_class=type(p))
     sub.required = True
+    make = sub.add_parser(
+        "make",
+        help="make a synthetic training corpus (espeak-ng conversations, procedural motion)",
+        description="Make HOURS of dyadic espeak-ng conversations with K takes of procedural motion each "
+        "(several languages, voices and speaker styles), in parallel, into a new folder DIR.",
+    )
+    make.add_argument("--hours", type=number_in(0.001, 1000.0), required=True, metavar="H", help="hours of conversation")
+    make.add_argument("--out", type=Path, required=True, metavar="DIR", help="new (or empty) corpus folder")
+    make.add_argument("--seed", type=int_in(0, 2**31 - 1), default=0, help="the same seed makes the same corpus")
+    make.add_argument(
+        "--jobs", type=int_in(1, 256), default=None, metavar="N", help="worker processes (default: every core)"
+    )
+    make.add_argument("--takes", type=int_in(1, 16), default=4, metavar="K", help="motion takes per conversation (4)")
+    make.set_defaults(func=run_make)
     info = sub.add_parser(
         "info",
         help="check a corpus and summarise it",
@@ -31,6 +46,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     info.add_argument("folder", type=Path, metavar="DIR", help="corpus folder (holds manifest.json)")
     info.add_argument("--json", action="store_true", help="print the summary as JSON")
     info.set_defaults(func=run_info)
+
+
+def run_make(args: argparse.Namespace) -> int:
+    from convodrive.training.corpus_maker import make_corpus
+
+    with frame_progress("making corpus (conversations)") as progress:
+        report = make_corpus(args.hours, args.out, seed=args.seed, jobs=args.jobs, takes=args.takes, progress=progress)
+    figures = report.to_json()
+    print(
+        f"{figures['corpus']}: {figures['hours']} h in {figures['conversations']} conversation(s), "
+        f"{args.takes} takes each, made in {figures['seconds'] / 60:.1f} min with {figures['jobs']} jobs "
+        f"({figures['minutes_per_corpus_hour']} min per corpus hour; load average "
+        f"{figures['loadavg_before'][0]} before, {figures['loadavg_after'][0]} after)"
+    )
+    return 0
 
 
 def summary(corpus: Corpus) -> dict:

@@ -73,6 +73,16 @@ class Prepared:
         return sum(a.nbytes for a in self.arrays.values())
 
 
+def to_pcm16(audio: np.ndarray) -> np.ndarray:
+    """16-bit samples, as the corpus stores audio (full scale 32768, clipped)."""
+    return np.clip(np.round(np.asarray(audio, np.float64) * 32768.0), -32768, 32767).astype(np.int16)
+
+
+def quantise(audio: np.ndarray) -> np.ndarray:
+    """float32 audio exactly as a reader of the stored 16-bit WAV gets it back."""
+    return to_pcm16(audio).astype(np.float32) / np.float32(32768.0)
+
+
 def prepare(rec: Recording, spec: MelSpec = DEFAULT_SPEC) -> Prepared:
     """Check a recording, quantise its audio to 16 bits and compute its log-mel features from the
     quantised samples, exactly as a reader of the stored WAV will get them."""
@@ -94,14 +104,14 @@ def prepare(rec: Recording, spec: MelSpec = DEFAULT_SPEC) -> Prepared:
             raise ValueError(f"{rec.id}: unknown {name} {sorted(set(given) - set(valid))[0]!r}")
     if rec.split is not None and rec.split not in SPLITS:
         raise ValueError(f"{rec.id}: split {rec.split!r} is not one of {SPLITS}")
-    pcm = np.clip(np.round(audio * 32768.0), -32768, 32767).astype(np.int16)
+    pcm = to_pcm16(audio)
     arrays: dict[str, np.ndarray] = {
         f"{rec.id}/pose": np.stack([t.pose for t in rec.takes]).astype(np.float32),
         f"{rec.id}/translation": np.stack([t.translation for t in rec.takes]).astype(np.float32),
         f"{rec.id}/face": np.stack([t.face for t in rec.takes]).astype(np.float32),
         f"{rec.id}/vad": np.stack([t.vad for t in rec.takes]).astype(np.float32),
         f"{rec.id}/state": np.stack([t.state for t in rec.takes]).astype(np.int8),
-        f"{rec.id}/mel": log_mel(pcm.astype(np.float32) / 32768.0, frames, spec),
+        f"{rec.id}/mel": log_mel(pcm.astype(np.float32) / np.float32(32768.0), frames, spec),
     }
     for key, value in arrays.items():
         if value.dtype.kind == "f" and not np.all(np.isfinite(value)):

@@ -1,0 +1,190 @@
+"""The bootstrap corpus: synthetic conversations, motion from the procedural generator as teacher.
+
+Each conversation is planned from ``(seed, index)`` alone: a language, a "speaker" (the person on
+channel 0: a voice and a motion style, carried as the speaker label), a partner voice and a length.
+It is spoken by espeak-ng with realistic turn taking (``dialogues``), and the procedural generator
+makes ``takes`` takes of self's motion from it (different seeds: the one-to-many structure the
+models learn). Conversations are made in worker processes and written in order by one
+``CorpusWriter``, so the corpus depends on the seed only, never on the number of jobs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import multiprocessing
+import os
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from convodrive.audio.source import DyadicAudio
+from convodrive.corpus.writer import CorpusWriter, Prepared, Recording, prepare, quantise
+from convodrive.generators.procedural import ProceduralGenerator
+from convodrive.training.dialogues import TurnTaking, Voice, synthesize
+
+CONVERSATION_SECONDS = (60.0, 150.0)
+MIN_SECONDS = 8.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Speaker:
+    """A person on channel 0: their voice and their motion style (procedural generator options)."""
+
+    label: str
+    style: dict[str, Any]
+    variant: str
+    pitch: int
+    rate: int
+
+
+SPEAKERS: tuple[Speaker, ...] = (
+    Speaker("calm", {"expressiveness": 0.6, "variability": 0.6, "gestures": False}, "m3", 35, 150),
+    Speaker("animated", {"expressiveness": 1.7, "variability": 1.3, "gestures": True}, "f2", 65, 185),
+    Speaker("reserved", {"expressiveness": 0.35, "variability": 1.0, "gestures": False}, "f4", 55, 160),
+    Speaker("restless", {"expressiveness": 1.2, "variability": 2.2, "gestures": True}, "m6", 45, 175),
+    Speaker("steady", {"expressiveness": 1.0, "variability": 0.3, "gestures": True}, "m1", 40, 165),
+    Speaker("expansive", {"expressiveness": 2.3, "variability": 1.0, "gestures": True}, "f5", 70, 170),
+)
+"""The speaker styles: motion from expressiveness, variability and gesture habits, each with a voice."""
+
+PARTNER_VARIANTS = ("m2", "m4", "m5", "m7", "f1", "f3", "klatt", "klatt4", "steph", "david", "annie", "andy")
+LANGUAGES: tuple[tuple[str, float], ...] = (
+    ("en-us", 0.40),
+    ("en-gb", 0.12),
+    ("de", 0.12),
+    ("fr-fr", 0.12),
+    ("es", 0.12),
+    ("it", 0.12),
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class ConversationPlan:
+    index: int
+    seconds: float
+    language: str
+    speaker: Speaker
+    self_voice: Voice
+    partner_voice: Voice
+    seed: int
+
+    @property
+    def id(self) -> str:
+        return f"conv{self.index:05d}"
+
+
+def plan_corpus(hours: float, seed: int) -> list[ConversationPlan]:
+    """Conversations until their lengths add up to ``hours``; each drawn from ``(seed, index)``."""
+    plans: list[ConversationPlan] = []
+    remaining = hours * 3600.0
+    while remaining > 0:
+        i = len(plans)
+        rng = np.random.default_rng([seed, i])
+        seconds = max(MIN_SECONDS, min(float(rng.uniform(*CONVERSATION_SECONDS)), remaining))
+        language = str(rng.choice([lang for lang, _ in LANGUAGES], p=[p for _, p in LANGUAGES]))
+        speaker = SPEAKERS[int(rng.integers(len(SPEAKERS)))]
+        self_voice = Voice(
+            language,
+            speaker.variant,
+            int(np.clip(speaker.pitch + rng.integers(-6, 7), 0, 99)),
+            int(speaker.rate + rng.integers(-10, 11)),
+            float(rng.uniform(0.45, 0.7)),
+        )
+        partner_voice = Voice(
+            language,
+            str(rng.choice(PARTNER_VARIANTS)),
+            int(rng.integers(20, 80)),
+            int(rng.integers(135, 195)),
+            float(rng.uniform(0.35, 0.7)),
+        )
+        plans.append(
+            ConversationPlan(i, seconds, language, speaker, self_voice, partner_voice, int(rng.integers(2**31)))
+        )
+        remaining -= seconds
+    return plans
+
+
+def make_conversation(plan: ConversationPlan, takes: int) -> Prepared:
+    """Speak one planned conversation, make its takes, and prepare it for the writer."""
+    rng = np.random.default_rng(plan.seed)
+    dialogue = synthesize((plan.self_voice, plan.partner_voice), plan.seconds, rng, TurnTaking())
+    audio = quantise(dialogue.audio)  # the teacher hears the 16-bit audio the corpus stores
+    english = plan.language.startswith("en")
+    generator = ProceduralGenerator({**plan.speaker.style, "phones": english})
+    clips = generator.generate(DyadicAudio(audio[:, 0], audio[:, 1]), seed=plan.seed, num_samples=takes)
+    metadata = {
+        "language": plan.language,
+        "voices": {"self": plan.self_voice.to_json(), "partner": plan.partner_voice.to_json()},
+        "style": plan.speaker.style,
+        "take_seeds": [int(c.metadata["seed"]) for c in clips],
+        **dialogue.summary(),
+    }
+    return prepare(Recording(plan.id, audio, clips, plan.speaker.label, metadata=metadata))
+
+
+def _work(job: tuple[ConversationPlan, int]) -> Prepared:
+    return make_conversation(*job)
+
+
+@dataclasses.dataclass(frozen=True)
+class MakeReport:
+    folder: Path
+    conversations: int
+    hours: float
+    seconds: float
+    jobs: int
+    load_before: tuple[float, float, float]
+    load_after: tuple[float, float, float]
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "corpus": str(self.folder),
+            "conversations": self.conversations,
+            "hours": round(self.hours, 4),
+            "seconds": round(self.seconds, 1),
+            "minutes_per_corpus_hour": round(self.seconds / 60.0 / max(self.hours, 1e-9), 2),
+            "jobs": self.jobs,
+            "loadavg_before": [round(v, 2) for v in self.load_before],
+            "loadavg_after": [round(v, 2) for v in self.load_after],
+        }
+
+
+def default_jobs() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def make_corpus(
+    hours: float,
+    out: str | Path,
+    seed: int = 0,
+    jobs: int | None = None,
+    takes: int = 4,
+    progress: Callable[[int, int], None] | None = None,
+) -> MakeReport:
+    """Make ``hours`` of corpus in ``out`` (a new or empty folder) with ``jobs`` worker processes."""
+    jobs = jobs or default_jobs()
+    plans = plan_corpus(hours, seed)
+    load_before = os.getloadavg()
+    start = time.perf_counter()
+    source = {"kind": "made", "hours": hours, "seed": seed, "takes": takes, "generator": "procedural"}
+    frames = 0
+    with CorpusWriter(out, source, seed=seed) as writer, contextlib.ExitStack() as stack:
+        work = [(p, takes) for p in plans]
+        if jobs == 1:
+            results: Iterator[Prepared] = map(_work, work)
+        else:
+            # spawn: workers start clean (no inherited decoder or thread state from the parent).
+            pool = stack.enter_context(multiprocessing.get_context("spawn").Pool(min(jobs, len(plans))))
+            results = pool.imap(_work, work)
+        for i, prepared in enumerate(results, 1):
+            writer.add(prepared)
+            frames += prepared.arrays[f"{prepared.recording.id}/mel"].shape[0]
+            if progress:
+                progress(i, len(plans))
+    return MakeReport(
+        Path(out), len(plans), frames / 30.0 / 3600.0, time.perf_counter() - start, jobs, load_before, os.getloadavg()
+    )
