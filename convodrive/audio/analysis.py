@@ -28,6 +28,7 @@ from convodrive.audio.features import (
     samples_needed,
 )
 from convodrive.audio.phones import BLOCK, PhoneTracker
+from convodrive.audio.source import DyadicAudio
 from convodrive.audio.visemes import NUM_VISEMES, spectral_visemes
 
 LOOKAHEAD_FRAMES = 3
@@ -193,3 +194,19 @@ class DyadicAnalyzer:
         self._pending_first = first + ready
         self._emitted = first + ready
         return FrameBatch(first, take_s, take_o, visemes, from_phones)
+
+
+def analyse(audio: DyadicAudio, params: VoiceParams | None = None, phones: bool = False) -> FrameBatch:
+    """Offline: the features of every frame of ``audio`` (equal to streaming it, chunk by chunk)."""
+    analyzer = DyadicAnalyzer(params, phones=phones)
+    try:
+        parts = [analyzer.push(audio.self_voice, audio.other_voice), analyzer.finish(audio.num_frames)]
+    finally:
+        analyzer.close()
+    return FrameBatch.concat([p for p in parts if p is not None])
+
+
+def voice_activity(audio: DyadicAudio, params: VoiceParams | None = None) -> np.ndarray:
+    """(T, 2) voice activity of self and the partner per motion frame, as generators see it."""
+    batch = analyse(audio, params)
+    return np.stack([batch.self_voice["vad"], batch.other_voice["vad"]], axis=1).astype(np.float32)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from convodrive.cli.options import int_in, number_in
 from convodrive.cli.progress import frame_progress
+from convodrive.corpus.importers import KINDS as IMPORT_KINDS
 from convodrive.corpus.manifest import SPLITS
 from convodrive.corpus.reader import Corpus
 
@@ -30,7 +31,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Make HOURS of dyadic espeak-ng conversations with K takes of procedural motion each "
         "(several languages, voices and speaker styles), in parallel, into a new folder DIR.",
     )
-    make.add_argument("--hours", type=number_in(0.001, 1000.0), required=True, metavar="H", help="hours of conversation")
+    make.add_argument(
+        "--hours", type=number_in(0.001, 1000.0), required=True, metavar="H", help="hours of conversation"
+    )
     make.add_argument("--out", type=Path, required=True, metavar="DIR", help="new (or empty) corpus folder")
     make.add_argument("--seed", type=int_in(0, 2**31 - 1), default=0, help="the same seed makes the same corpus")
     make.add_argument(
@@ -38,6 +41,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     make.add_argument("--takes", type=int_in(1, 16), default=4, metavar="K", help="motion takes per conversation (4)")
     make.set_defaults(func=run_make)
+    imp = sub.add_parser(
+        "import",
+        help="import a corpus you have (BEAT2, SHOW, Seamless Interaction, your own recordings)",
+        description="Import the corpus in SRC into a new corpus folder DIR. KIND: "
+        + "; ".join(f"{k}: {where}" for k, (_, where) in IMPORT_KINDS.items()),
+    )
+    imp.add_argument("kind", choices=tuple(IMPORT_KINDS), metavar="KIND", help=", ".join(IMPORT_KINDS))
+    imp.add_argument("src", type=Path, metavar="SRC", help="the folder the corpus is in")
+    imp.add_argument("--out", type=Path, required=True, metavar="DIR", help="new (or empty) corpus folder")
+    imp.add_argument("--seed", type=int_in(0, 2**31 - 1), default=0, help="seed of the train/val/test draw")
+    imp.add_argument("--speaker", metavar="LABEL", help="speaker label for every conversation")
+    imp.add_argument(
+        "--mano",
+        type=Path,
+        metavar="FILE",
+        help="show: hand PCA components (SMPL-X model .npz or TalkSHOW hand_component.json); without it hands are masked",
+    )
+    imp.set_defaults(func=run_import)
     info = sub.add_parser(
         "info",
         help="check a corpus and summarise it",
@@ -60,6 +81,28 @@ def run_make(args: argparse.Namespace) -> int:
         f"({figures['minutes_per_corpus_hour']} min per corpus hour; load average "
         f"{figures['loadavg_before'][0]} before, {figures['loadavg_after'][0]} after)"
     )
+    return 0
+
+
+def run_import(args: argparse.Namespace) -> int:
+    from convodrive.corpus.importers import import_corpus
+    from convodrive.corpus.importers.options import ImportOptions
+
+    options = ImportOptions(speaker=args.speaker, mano=args.mano)
+    with frame_progress(f"importing {args.kind}") as progress:
+        report = import_corpus(args.kind, args.src, args.out, seed=args.seed, options=options, progress=progress)
+    corpus = Corpus.open(args.out)
+    masked = sorted(
+        {f"{len(c.missing_joints)} joints, {len(c.missing_face)} face channels" for c in corpus.conversations}
+    )
+    print(
+        f"{args.out}: {report.kind} corpus, {report.hours:.3f} h in {report.conversations} conversation(s), "
+        f"speakers {', '.join(corpus.speakers)}; masked: {'; '.join(masked)}"
+    )
+    for conv in corpus.conversations[:1]:
+        for key in ("hands", "face"):
+            if key in conv.metadata:
+                print(f"  {key}: {conv.metadata[key]}")
     return 0
 
 

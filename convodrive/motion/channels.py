@@ -5,6 +5,8 @@ from __future__ import annotations
 import enum
 import math
 
+import numpy as np
+
 ARKIT_NAMES: tuple[str, ...] = (
     "eyeBlinkLeft",
     "eyeLookDownLeft",
@@ -91,3 +93,12 @@ class ConversationState(enum.IntEnum):
         if other_active:
             return cls.LISTENING
         return cls.SILENCE
+
+    @classmethod
+    def from_vad(cls, vad: np.ndarray, threshold: float = 0.5) -> np.ndarray:
+        """(T,) int8 states from (T, 2) voice activity of self and the partner."""
+        vad = np.asarray(vad)
+        speaking, listening = vad[:, 0] > threshold, vad[:, 1] > threshold
+        return np.select(
+            [speaking & listening, speaking, listening], [cls.OVERLAP, cls.SPEAKING, cls.LISTENING], cls.SILENCE
+        ).astype(np.int8)

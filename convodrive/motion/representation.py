@@ -178,18 +178,12 @@ def decode(features: np.ndarray, base: MotionClip | None = None, fps: float | No
     if base is not None and base.num_frames != n:
         raise ValueError(f"base clip has {base.num_frames} frames, features {n}")
     vad = np.clip(features[:, PARTS["vad"]], 0.0, 1.0)
-    speaking, listening = vad[:, 0] > 0.5, vad[:, 1] > 0.5
-    state = np.select(
-        [speaking & listening, speaking, listening],
-        [ConversationState.OVERLAP, ConversationState.SPEAKING, ConversationState.LISTENING],
-        ConversationState.SILENCE,
-    ).astype(np.int8)
     return MotionClip(
         pose=decode_pose(features, None if base is None else base.pose),
         translation=np.zeros((n, 3), np.float32) if base is None else base.translation.astype(np.float32),
         face=np.clip(features[:, PARTS["arkit"]], 0.0, 1.0),
         vad=vad,
-        state=state,
+        state=ConversationState.from_vad(vad),
         fps=fps if fps is not None else (base.fps if base is not None else 30.0),
     )
 

@@ -91,9 +91,10 @@ class Dialogue:
 
 
 def synthesize(
-    voices: tuple[Voice, Voice], seconds: float, rng: np.random.Generator, style: TurnTaking = TurnTaking()
+    voices: tuple[Voice, Voice], seconds: float, rng: np.random.Generator, style: TurnTaking | None = None
 ) -> Dialogue:
     """About ``seconds`` of conversation between ``voices`` (self, partner) in their language."""
+    style = style or TurnTaking()
     placed: list[tuple[int, int, np.ndarray]] = []
     speech: list[Speech] = []
 

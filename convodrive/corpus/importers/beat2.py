@@ -1,0 +1,106 @@
+"""BEAT2 (BEATX, the EMAGE data set): SMPL-X motion of one speaker with 16 kHz speech.
+
+Layout (``beat_english_v2.0.0/``), or the ``.npz`` and ``.wav`` side by side in any folder::
+
+    smplxflame_30/<clip>.npz   poses (T, 165): SMPL-X's 55 joints in SMPL-X order, axis-angle;
+                               trans (T, 3); expressions (T, 100) FLAME; betas; mocap_frame_rate
+    wave16k/<clip>.wav         the speaker, mono 16 kHz
+    train_test_split.csv       optional: columns id, type (train / val / test / additional)
+
+Clips are named ``<n>_<speaker>_<...>``: the speaker label is the second field. Monologues: the
+partner channel is silent. FLAME expressions cannot become ARKit channels without the FLAME basis,
+so the 52 face channels are masked; jaw and eyes come from the skeleton.
+"""
+
+from __future__ import annotations
+
+import csv
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from convodrive import FPS
+from convodrive.corpus.importers.common import (
+    ALL_FACE,
+    SMPLX_JOINTS,
+    pose_from_joints,
+    read_speaker_audio,
+    recording,
+    upright_root,
+)
+from convodrive.corpus.importers.options import ImportOptions
+from convodrive.corpus.manifest import safe_id
+from convodrive.corpus.writer import Recording
+from convodrive.plumbing.errors import InputFileError
+
+_SPLIT_NAMES = {"train": "train", "val": "val", "test": "test", "additional": "train"}
+
+
+def find(src: Path, options: ImportOptions) -> list[tuple[Path, Path, str | None]]:
+    """Each clip's motion, audio and prescribed split."""
+    motion_dir = src / "smplxflame_30" if (src / "smplxflame_30").is_dir() else src
+    audio_dir = src / "wave16k" if (src / "wave16k").is_dir() else motion_dir
+    splits = _read_splits(src / "train_test_split.csv")
+    items = []
+    for npz in sorted(motion_dir.glob("*.npz")):
+        wav = audio_dir / f"{npz.stem}.wav"
+        if not wav.is_file():
+            raise InputFileError(npz, f"no audio beside it (expected {wav})")
+        items.append((npz, wav, splits.get(npz.stem)))
+    if not items:
+        raise InputFileError(src, "holds no BEAT2 clips (expected smplxflame_30/*.npz and wave16k/*.wav)")
+    return items
+
+
+def _read_splits(path: Path) -> dict[str, str]:
+    if not path.is_file():
+        return {}
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            rows = list(csv.DictReader(fh))
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise InputFileError(path, f"not a readable CSV ({exc.__class__.__name__})") from None
+    out = {}
+    for row in rows:
+        name, kind = (row.get("id") or "").strip(), (row.get("type") or "").strip().lower()
+        if name and kind in _SPLIT_NAMES:
+            out[name] = _SPLIT_NAMES[kind]
+    return out
+
+
+def load(item: tuple[Path, Path, str | None], options: ImportOptions) -> list[Recording]:
+    npz, wav, split = item
+    try:
+        with np.load(npz, allow_pickle=False) as data:
+            if "poses" not in data.files:
+                raise InputFileError(npz, f"no 'poses' array (has {', '.join(data.files) or 'nothing'})")
+            poses = np.asarray(data["poses"])
+            trans = np.asarray(data["trans"]) if "trans" in data.files else np.zeros((len(poses), 3))
+            rate = float(data["mocap_frame_rate"]) if "mocap_frame_rate" in data.files else float(FPS)
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
+        raise InputFileError(npz, f"not a readable BEAT2 .npz ({exc.__class__.__name__})") from None
+    if abs(rate - FPS) > 1e-3:
+        raise InputFileError(npz, f"motion at {rate:g} fps; BEAT2's smplxflame_30 is 30 fps")
+    if trans.shape != (len(poses), 3):
+        raise InputFileError(npz, f"'trans' has shape {trans.shape}, expected ({len(poses)}, 3)")
+    pose, missing = pose_from_joints(poses, SMPLX_JOINTS, npz)
+    pose, translation = upright_root(pose, trans)
+    fields = npz.stem.split("_")
+    speaker = options.speaker or (fields[1] if len(fields) > 1 and fields[1] else "beat2")
+    return [
+        recording(
+            safe_id(npz.stem),
+            read_speaker_audio(wav),
+            pose,
+            translation,
+            None,
+            speaker=speaker,
+            audio_path=wav,
+            motion_path=npz,
+            missing_joints=missing,
+            missing_face=ALL_FACE,
+            split=split,
+            metadata={"source": "beat2", "face": "FLAME expressions (not ARKit): masked"},
+        )
+    ]
