@@ -13,6 +13,7 @@ says, like a real servo), a servo that vanishes and comes back, a port that disa
 from __future__ import annotations
 
 import dataclasses
+import math
 import random
 import threading
 import time
@@ -23,6 +24,7 @@ from convodrive.backends.servo.dynamixel_table import Model, decode, encode
 from convodrive.backends.servo.dynamixel_table import model as lookup_model
 from convodrive.backends.servo.pty_server import PtyDevice, PtyServer
 from convodrive.plumbing.errors import UserError
+from convodrive.plumbing.text import clip_value
 
 Clock = Callable[[], float]
 
@@ -174,7 +176,9 @@ class DynamixelEmulator(PtyDevice):
         link: str | None = None,
         clock: Clock = time.monotonic,
         seed: int = 0,
+        on_torque: Callable[[int, bool, str], None] | None = None,
     ) -> None:
+        """``on_torque(servo_id, on, why)`` hears every change of a servo's torque, whoever made it."""
         spec = lookup_model(model)
         self.clock = clock
         self.baudrate = baudrate
@@ -197,6 +201,8 @@ class DynamixelEmulator(PtyDevice):
         self.drop_rate = 0.0
         self.corrupt_rate = 0.0
         self._server = PtyServer(self._on_bytes, link=link, name="dynamixel-emulator")
+        self._on_torque = on_torque
+        self._torque = {i: s.torque for i, s in self.servos.items()}
 
     def servo(self, servo_id: int) -> EmulatedServo:
         return self.servos[servo_id]
@@ -219,6 +225,7 @@ class DynamixelEmulator(PtyDevice):
     def hardware_error(self, servo_id: int, fault: str) -> None:
         with self._lock:
             self.servos[servo_id].set_error(fault)
+            self._torque_changed(f"hardware error: {fault}")
 
     def vanish(self, servo_id: int, seconds: float | None = None) -> None:
         """The servo stops answering (cable pulled); back after ``seconds`` if given."""
@@ -231,6 +238,7 @@ class DynamixelEmulator(PtyDevice):
         with self._lock:
             servo.alive = True
             servo.reboot()  # power came back: RAM state is lost, torque off
+            self._torque_changed("power came back")
 
     def unplug(self, seconds: float | None = None) -> None:
         """The USB adapter disappears; with ``seconds`` it comes back under the same link."""
@@ -240,7 +248,22 @@ class DynamixelEmulator(PtyDevice):
         self._server.replug()
 
     def schedule(self, fault: Fault) -> None:
+        """Apply ``fault`` ``fault.at`` seconds from now; a fault this bus cannot have is a
+        ``UserError`` here, not an exception in the timer thread later."""
+        self.check_fault(fault)
         self._server.after(fault.at, lambda: fault.apply(self))
+
+    def check_fault(self, fault: Fault) -> None:
+        if fault.kind not in SERVO_FAULTS:
+            return
+        servo_id = fault.servo_id
+        if servo_id not in self.servos:
+            ids = ", ".join(map(str, sorted(self.servos))) or "none"
+            raise UserError(f"--fault {fault}: no servo {servo_id} on the emulated bus (ids: {ids})")
+        errors = self.servos[servo_id].table.error_bits.values()
+        if fault.kind != "vanish" and fault.kind not in errors:
+            model = self.servos[servo_id].model.name
+            raise UserError(f"--fault {fault}: a {model} has no {fault.kind} error (it has: {', '.join(errors)})")
 
     # ------------------------------------------------------------- protocol
     def _on_bytes(self, data: bytes) -> None:
@@ -253,6 +276,7 @@ class DynamixelEmulator(PtyDevice):
                 self.counters["packets"] += 1
                 request_bytes += 10 + len(packet.params)
                 replies.extend(self._handle(packet))
+            self._torque_changed("commanded")
             out = [(self._delay_us(sid), self._mangle(sid, raw)) for sid, raw in replies]
         due = arrived + self._wire_s(request_bytes)
         for delay_us, raw in out:
@@ -263,6 +287,15 @@ class DynamixelEmulator(PtyDevice):
             self._wait_until(due)
             self._server.send(raw)
             self.counters["replies"] += 1
+
+    def _torque_changed(self, why: str) -> None:
+        """Tell ``on_torque`` about every servo whose torque differs from what it last heard."""
+        for servo_id, servo in self.servos.items():
+            on = servo.torque
+            if on != self._torque[servo_id]:
+                self._torque[servo_id] = on
+                if self._on_torque is not None:
+                    self._on_torque(servo_id, on, why)
 
     def _delay_us(self, servo_id: int) -> float:
         servo = self.servos.get(servo_id)
@@ -411,7 +444,9 @@ def _u16(data: bytes, at: int) -> int:
 
 
 # ----------------------------------------------------------------- fault schedules (CLI)
-FAULT_KINDS = ("drop", "corrupt", "overload", "overheating", "input_voltage", "vanish", "port")
+SERVO_FAULTS = ("overload", "overheating", "input_voltage", "vanish")
+FAULT_KINDS = ("drop", "corrupt", *SERVO_FAULTS, "port")
+MAX_FAULT_TIME = 86_400.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -424,17 +459,27 @@ class Fault:
     at: float = 0.0
     duration: float | None = None
 
+    def __str__(self) -> str:
+        arg = "" if self.arg is None else f":{self.arg:g}"
+        duration = "" if self.duration is None else f"+{self.duration:g}"
+        return f"{self.kind}{arg}@{self.at:g}{duration}"
+
+    @property
+    def servo_id(self) -> int:
+        """The servo a servo fault hits (servo 1 when none is named)."""
+        return int(self.arg or 1)
+
     def apply(self, emu: DynamixelEmulator) -> None:
         if self.kind == "drop":
             emu.drop_rate = self.arg if self.arg is not None else 0.05
         elif self.kind == "corrupt":
             emu.corrupt_rate = self.arg if self.arg is not None else 0.05
         elif self.kind == "vanish":
-            emu.vanish(int(self.arg or 1), self.duration)
+            emu.vanish(self.servo_id, self.duration)
         elif self.kind == "port":
             emu.unplug(self.duration)
         else:
-            emu.hardware_error(int(self.arg or 1), self.kind)
+            emu.hardware_error(self.servo_id, self.kind)
 
 
 def split_fault(text: str) -> Fault:
@@ -443,15 +488,27 @@ def split_fault(text: str) -> Fault:
         rest, _, duration = text.partition("+")
         rest, _, at = rest.partition("@")
         kind, _, arg = rest.partition(":")
-        return Fault(kind, float(arg) if arg else None, float(at or 0), float(duration) if duration else None)
+        fault = Fault(kind, float(arg) if arg else None, float(at or 0), float(duration) if duration else None)
     except ValueError:
-        raise UserError(f"--fault {text!r}: expected KIND[:ARG][@SECONDS][+SECONDS]") from None
+        raise UserError(f"--fault {clip_value(text)}: expected KIND[:ARG][@SECONDS][+SECONDS]") from None
+    times = [fault.at] + ([fault.duration] if fault.duration is not None else [])
+    if not all(0 <= t <= MAX_FAULT_TIME for t in times):  # also refuses nan
+        raise UserError(f"--fault {clip_value(text)}: times must be from 0 to {MAX_FAULT_TIME:g} seconds")
+    if fault.arg is not None and not math.isfinite(fault.arg):
+        raise UserError(f"--fault {clip_value(text)}: the argument must be a finite number")
+    return fault
 
 
 def parse_fault(text: str) -> Fault:
     fault = split_fault(text)
     if fault.kind not in FAULT_KINDS:
-        raise UserError(f"--fault {text!r}: unknown kind {fault.kind!r} (known: {', '.join(FAULT_KINDS)})")
+        raise UserError(
+            f"--fault {clip_value(text)}: unknown kind {clip_value(fault.kind)} (known: {', '.join(FAULT_KINDS)})"
+        )
+    if fault.kind in ("drop", "corrupt") and fault.arg is not None and not 0 <= fault.arg <= 1:
+        raise UserError(f"--fault {clip_value(text)}: {fault.kind} takes a rate from 0 to 1")
+    if fault.kind in SERVO_FAULTS and not float(fault.arg or 1).is_integer():
+        raise UserError(f"--fault {clip_value(text)}: {fault.kind} takes a servo id, e.g. {fault.kind}:3")
     return fault
 
 

@@ -71,8 +71,11 @@ class MaestroEmulator(PtyDevice):
         device: int = 12,
         link: str | None = None,
         clock: Callable[[], float] = time.monotonic,
+        on_pulses: Callable[[int, bool], None] | None = None,
     ) -> None:
+        """``on_pulses(channel, on)`` hears a channel's pulses start or stop (a hobby servo's torque)."""
         self.channels = [Channel() for _ in range(channels)]
+        self._on_pulses = on_pulses
         self.device = device
         self.clock = clock
         self.errors = 0
@@ -205,7 +208,10 @@ class MaestroEmulator(PtyDevice):
             self.errors |= 1 << 4
             return
         ch = self.channels[channel]
+        was_on = ch.target != 0
         setattr(ch, field, value)
+        if field == "target" and was_on != (value != 0) and self._on_pulses is not None:
+            self._on_pulses(channel, value != 0)
         if field == "target":
             if value == 0:
                 ch.position, ch.velocity = 0.0, 0.0  # pulses stop at once

@@ -16,6 +16,16 @@ import tty
 from collections.abc import Callable
 from pathlib import Path
 
+from convodrive.plumbing.errors import UserError, os_reason
+
+
+def check_link(link: Path) -> None:
+    """The link's folder must exist, and the link must not replace a file that is not a link."""
+    if not link.parent.is_dir():
+        raise UserError(f"--link {link}: no such folder {link.parent}")
+    if link.exists() and not link.is_symlink():
+        raise UserError(f"--link {link}: a file is already there (the link would replace it)")
+
 
 class PtyServer:
     """Calls ``on_bytes(data)`` for every chunk the client writes; ``send`` answers it."""
@@ -46,7 +56,14 @@ class PtyServer:
         return self._master >= 0
 
     def start(self) -> PtyServer:
-        self._open_pty()
+        """Open the pty (and its link); a link that cannot be made is a ``UserError``."""
+        if self._link:
+            check_link(self._link)
+        try:
+            self._open_pty()
+        except OSError as exc:
+            self._close_pty()
+            raise UserError(f"--link {self._link}: cannot make the link ({os_reason(exc)})") from None
         self._thread = threading.Thread(target=self._serve, name=self._name, daemon=True)
         self._thread.start()
         return self

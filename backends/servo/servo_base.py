@@ -154,8 +154,8 @@ class ServoBackend(Backend):
             try:
                 values = self.guard.check(np.asarray(frame.values, dtype=float)[self.columns])
             except Refused as exc:  # not fed to the watchdog: a stream of bad frames ends at neutral
-                self._counts["frames_refused"] += 1
-                self._event("frame_refused", None, str(exc), fault=False)
+                self._counts["frames_refused"] += 1  # a fault: the head did not do what the run asked
+                self._event("frame_refused", None, str(exc))
                 return
             self.watchdog.feed()
             self._ease = None
@@ -288,6 +288,8 @@ class ServoBackend(Backend):
             current += [f"{f}:{n}" for f in s.get("faults", [])]
         if self.guard is not None and not self._closed and not self._hw_connected():
             current.append("port_lost")
+        if self._counts["frames_refused"]:
+            current.append("frames_refused")
         return {
             "status": "degraded" if current else "ok",
             "port": self.options.port,

@@ -1,8 +1,11 @@
 """``convodrive emulate``: an emulated servo bus on a pseudo-terminal, for trying things without a robot.
 
 It prints the port path on the first line (give it to ``--port`` or ``backends.<name>.port``) and
-serves until Ctrl-C. Faults can be scheduled: ``--fault vanish:3@5+2`` (servo 3 gone from 5 s to
-7 s), ``--fault overload:4@10``, ``--fault drop:0.05``, ``--fault port@8+1``.
+serves until Ctrl-C or SIGTERM, also when started in the background (where a shell would have it
+ignore SIGINT). Faults can be scheduled: ``--fault vanish:3@5+2`` (servo 3 gone from 5 s to 7 s),
+``--fault overload:4@10``, ``--fault drop:0.05``, ``--fault port@8+1``; a fault the bus cannot
+have is refused before serving. On stderr it tells when torque (a Maestro: pulses) goes on or off,
+and on which servos, and at the end which are still on.
 """
 
 from __future__ import annotations
@@ -11,8 +14,13 @@ import argparse
 import signal
 import sys
 import threading
+import time
+from collections.abc import Callable, Iterable
 
+from convodrive.backends.servo.servo_options import DynamixelOptions
+from convodrive.plugins.options import check_options
 from convodrive.plumbing.errors import UserError
+from convodrive.plumbing.safe_yaml import parse_scalar
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -26,7 +34,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     dxl = kinds.add_parser("dynamixel", help="Dynamixel Protocol 2.0 servos")
     dxl.add_argument("--ids", default="1-7", help="servo ids, e.g. 1-7 or 1,2,5-6 (default 1-7)")
     dxl.add_argument("--model", default="xl330", help="servo model (xl330, xm430, xl320, ...)")
-    dxl.add_argument("--baudrate", type=int, default=1_000_000, help="emulated wire speed (reply timing)")
+    dxl.add_argument("--baudrate", default="1000000", help="emulated wire speed in bits per second (reply timing)")
     dxl.add_argument("--link", help="also make this path a symlink to the pty (stable across --fault port)")
     dxl.add_argument(
         "--fault",
@@ -66,17 +74,69 @@ def _interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
-def _serve(emulator: object, describe: str) -> int:
+def ranges(numbers: Iterable[int]) -> str:
+    """``1-4, 7``: sorted numbers with runs joined."""
+    out: list[str] = []
+    for n in sorted(numbers):
+        if out and out[-1].split("-")[-1] == str(n - 1):
+            out[-1] = f"{out[-1].split('-')[0]}-{n}"
+        else:
+            out.append(str(n))
+    return ", ".join(out)
+
+
+class StateLog:
+    """Prints when torque goes on or off. The backend switches servos one write at a time, so
+    changes within ``settle_s`` of each other with the same cause are one line."""
+
+    def __init__(self, unit: str, state: str, settle_s: float = 0.05) -> None:
+        self.unit, self.state, self.settle_s = unit, state, settle_s
+        self.on: set[int] = set()
+        self._start = time.monotonic()
+        self._pending: dict[tuple[bool, str], set[int]] = {}
+        self._lock = threading.Lock()
+        self._timer: threading.Timer | None = None
+
+    def __call__(self, unit: int, on: bool, why: str = "") -> None:
+        with self._lock:
+            (self.on.add if on else self.on.discard)(unit)
+            self._pending.setdefault((on, why), set()).add(unit)
+            if self._timer is None:
+                self._timer = threading.Timer(self.settle_s, self.flush)
+                self._timer.daemon = True
+                self._timer.start()
+
+    def flush(self) -> None:
+        with self._lock:
+            pending, self._pending, self._timer = self._pending, {}, None
+        for (on, why), units in pending.items():
+            cause = f" ({why})" if why and why != "commanded" else ""
+            self._say(f"{self.state} {'on' if on else 'off'}: {self.unit} {ranges(units)}{cause}")
+
+    def close(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+        self.flush()
+        still = f"still on: {self.unit} {ranges(self.on)}" if self.on else f"off on every {self.unit}"
+        self._say(f"stopped; {self.state} {still}")
+
+    def _say(self, text: str) -> None:
+        print(f"{time.monotonic() - self._start:8.2f} s  {text}", file=sys.stderr, flush=True)
+
+
+def _serve(emulator: object, describe: str, log: StateLog) -> int:
     """Print the port, then serve until Ctrl-C or SIGTERM (closing the pty and any link)."""
+    signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGINT, _interrupt)  # a background job starts with SIGINT ignored
     print(emulator.port, flush=True)  # type: ignore[attr-defined]
     print(describe, file=sys.stderr, flush=True)
-    signal.signal(signal.SIGTERM, _interrupt)
     try:
         threading.Event().wait()
     except KeyboardInterrupt:
         pass
     finally:
         emulator.stop()  # type: ignore[attr-defined]
+        log.close()
     return 0
 
 
@@ -85,11 +145,16 @@ def run_dynamixel(args: argparse.Namespace) -> int:
 
     ids = parse_ids(args.ids)
     faults = [parse_fault(f) for f in args.fault]
-    emu = DynamixelEmulator(ids, args.model, baudrate=args.baudrate, link=args.link).start()
+    baudrate = check_options(DynamixelOptions, {"baudrate": parse_scalar(args.baudrate)}, plugin="--baudrate")
+    log = StateLog("servo", "torque")
+    emu = DynamixelEmulator(ids, args.model, baudrate=baudrate["baudrate"], link=args.link, on_torque=log)
+    for fault in faults:
+        emu.check_fault(fault)
+    emu.start()
     for fault in faults:
         emu.schedule(fault)
     model = next(iter(emu.servos.values())).model.name
-    return _serve(emu, f"emulating {len(ids)} {model} servo(s), ids {args.ids}; Ctrl-C to stop")
+    return _serve(emu, f"emulating {len(ids)} {model} servo(s), ids {args.ids}; Ctrl-C to stop", log)
 
 
 def run_maestro(args: argparse.Namespace) -> int:
@@ -97,14 +162,18 @@ def run_maestro(args: argparse.Namespace) -> int:
     from convodrive.backends.servo.dynamixel_emulator import split_fault
     from convodrive.backends.servo.maestro_emulator import MaestroEmulator
 
-    emu = MaestroEmulator(args.channels, link=args.link)
-    actions = []
+    log = StateLog("channel", "pulses")
+    emu = MaestroEmulator(args.channels, link=args.link, on_pulses=log)
+    actions: list[tuple[float, Callable[[], None]]] = []
     for text in args.fault:
         spec = split_fault(text)
         if spec.kind not in ("drop", "port", *mp.ERROR_BITS.values()):
             raise UserError(f"--fault {text!r}: use drop:COUNT, port or one of {', '.join(mp.ERROR_BITS.values())}")
         if spec.kind == "drop":
-            actions.append((spec.at, lambda n=int(spec.arg or 1): emu.drop_replies(n)))
+            count = 1.0 if spec.arg is None else spec.arg
+            if not (count.is_integer() and 1 <= count <= 1_000_000):
+                raise UserError(f"--fault {text!r}: drop takes a count of replies from 1 to 1000000")
+            actions.append((spec.at, lambda n=int(count): emu.drop_replies(n)))
         elif spec.kind == "port":
             actions.append((spec.at, lambda d=spec.duration: emu.unplug(d)))
         else:
@@ -112,4 +181,4 @@ def run_maestro(args: argparse.Namespace) -> int:
     emu.start()
     for at, action in actions:
         emu.after(at, action)
-    return _serve(emu, f"emulating a {args.channels}-channel Maestro; Ctrl-C to stop")
+    return _serve(emu, f"emulating a {args.channels}-channel Maestro; Ctrl-C to stop", log)

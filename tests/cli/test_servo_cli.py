@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import dynamixel_sdk as sdk
+import pytest
 import yaml
 
 from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, start_emulated_head
@@ -91,12 +92,19 @@ def test_set_limits_in_block_style_yaml() -> None:
     assert "# old" in out and data["maestro"]["joints"]["a"] == {"channel": 0}
 
 
+def _as_background_job() -> None:
+    """What a shell does to a job started with `&` (and what `nohup ... &` inherits): SIGINT ignored."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def test_emulate_command_serves_until_interrupted() -> None:
+    """Defect 14: started in the background, the emulator ignored SIGINT and served forever."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "convodrive.cli.main", "emulate", "dynamixel", "--ids", "1-2", "--model", "xm430"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=_as_background_job,
     )
     try:
         port_path = proc.stdout.readline().strip()
@@ -104,7 +112,55 @@ def test_emulate_command_serves_until_interrupted() -> None:
         assert port.openPort()
         ph = sdk.PacketHandler(2.0)
         assert [ph.ping(port, i)[:2] for i in (1, 2)] == [(1020, sdk.COMM_SUCCESS)] * 2
+
+        def torque(servo_id: int, value: int) -> None:  # retried: a loaded machine may miss the SDK's timeout
+            assert any(ph.write1ByteTxRx(port, servo_id, 64, value)[0] == sdk.COMM_SUCCESS for _ in range(5))
+
+        for value in (1, 0):  # what a backend does at open and at close
+            torque(1, value), torque(2, value)
+            time.sleep(0.3)
+        torque(2, 1)
         port.closePort()
     finally:
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=10) == 0
+    log = [line.split(" s  ", 1)[1] for line in proc.stderr.read().splitlines()[1:]]
+    assert log[0] == "torque on: servo 1-2" and log[-1] == "stopped; torque still on: servo 2", log
+    seen: dict[int, list[str]] = {1: [], 2: []}  # a loaded machine may split a burst over two lines
+    for line in log[:-1]:
+        state, servos = line.removeprefix("torque ").split(": servo ")
+        for part in servos.split(", "):
+            lo, _, hi = part.partition("-")
+            for servo_id in range(int(lo), int(hi or lo) + 1):
+                seen[servo_id].append(state)
+    assert seen == {1: ["on", "off"], 2: ["on", "off", "on"]}, log
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["--fault", "overload:99"], "no servo 99 on the emulated bus (ids: 1, 2, 3, 4, 5, 6, 7)"),
+        (["--ids", "1-2", "--fault", "vanish:5@1+1"], "no servo 5 on the emulated bus"),
+        (["--fault", "overload:3@nan"], "times must be from 0 to 86400 seconds"),
+        (["--fault", "drop:5"], "drop takes a rate from 0 to 1"),
+        (["--link", "/nonexistent/folder/ttyHEAD"], "--link /nonexistent/folder/ttyHEAD: no such folder"),
+        (["--baudrate", "fast"], "option 'baudrate' must be a whole number"),
+    ],
+)
+def test_emulate_refuses_what_it_cannot_serve(capsys, args: list[str], needle: str) -> None:  # type: ignore[no-untyped-def]
+    """Defect 14: an id not on the bus was accepted, then threw in a background thread; --link into
+    a missing folder crashed."""
+    assert main(["emulate", "dynamixel", *args]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "", "no port is printed: nothing is served"
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0], err
+
+
+def test_emulate_link_never_replaces_a_file(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    precious = tmp_path / "notes.txt"
+    precious.write_text("keep me")
+    assert main(["emulate", "dynamixel", "--link", str(precious)]) == 2
+    assert "a file is already there" in capsys.readouterr().err and precious.read_text() == "keep me"
+    assert main(["emulate", "maestro", "--fault", "drop:0"]) == 2
+    assert "drop takes a count" in capsys.readouterr().err

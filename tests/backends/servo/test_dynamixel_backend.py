@@ -197,9 +197,13 @@ def test_refuses_frames_outside_limits() -> None:
         backend.send(TargetFrame(1, 1 / FPS, nan, ()))
         time.sleep(0.1)
         refused_writes = len(emu.goal_log) - n
+        health = backend.health()
         backend.close()
         report = backend.report()
     assert refused_writes == 0 and report["frames_refused"] == 2
+    # defect 7: refused frames once left the report "ok" while the head never moved
+    assert health["status"] == "degraded" and "frames_refused" in health["active_faults"]
+    assert report["status"] == "degraded" and "frame_refused" in report["faults"]
 
 
 def test_user_errors_are_one_line(tmp_path: Path) -> None:

@@ -141,3 +141,22 @@ def test_pololu_protocol_with_device_number() -> None:
         backend.close()
         assert emu.targets(0)[0].target == _expected_quarter_us(values)[0]
         assert backend.report()["torque_off"] and backend.health()["torque_off"] is True
+
+
+def test_a_channel_the_maestro_does_not_have_is_refused() -> None:
+    """Defect 11: a profile channel beyond the controller's was accepted, and its servo never moved."""
+    with MaestroEmulator(6) as emu:  # a Micro Maestro: channels 0..5; the profile's eyelids use 6
+        with pytest.raises(UserError) as info:
+            _backend(emu.port)
+    message = str(info.value)
+    assert "backends.maestro.joints.eyelids.channel" in message and "channel 6" in message, message
+    with pytest.raises(UserError, match=r"option 'joints.eyelids.channel': 6 is not a channel of a 6-channel Maestro"):
+        MaestroBackend({**PROFILE.backend_options("maestro"), "channels": 6})
+    twice = copy.deepcopy(PROFILE.backend_options("maestro"))
+    twice["joints"]["jaw"]["channel"] = 0
+    with pytest.raises(UserError, match="channel 0 is used by more than one joint"):
+        MaestroBackend(twice)
+    with MaestroEmulator(12) as emu:  # declared and present: runs
+        backend = _backend(emu.port, channels=12)
+        backend.close()
+        assert backend.report()["torque_off"]
