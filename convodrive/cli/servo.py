@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from convodrive.backends.servo.servo_options import DynamixelOptions
+from convodrive.cli.options import number_in
 from convodrive.plugins.options import (
     add_option_arguments,
     check_options,
@@ -70,7 +71,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         t.set_defaults(func=fn)
     tools.choices["calibrate"].add_argument("--joint", action="append", help="only these joints (repeatable)")
     tools.choices["calibrate"].add_argument("--output", help="write the calibrated profile here instead")
-    tools.choices["monitor"].add_argument("--rate", type=float, default=5.0, help="refreshes per second")
+    tools.choices["monitor"].add_argument(
+        "--rate", type=number_in(0.2, 30), default=5.0, help="refreshes per second (0.2 to 30; default 5)"
+    )
     tools.choices["monitor"].add_argument("--once", action="store_true", help="print one table and exit")
 
 
@@ -304,7 +307,7 @@ def run_monitor(args: argparse.Namespace) -> int:
             return 0
         with Live(health_table(bus), console=console, refresh_per_second=max(1.0, args.rate)) as live:
             while True:
-                time.sleep(1.0 / max(0.1, args.rate))
+                time.sleep(1.0 / args.rate)
                 live.update(health_table(bus))
     except KeyboardInterrupt:
         return 0

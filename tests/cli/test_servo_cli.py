@@ -164,3 +164,19 @@ def test_emulate_link_never_replaces_a_file(capsys, tmp_path: Path) -> None:  # 
     assert "a file is already there" in capsys.readouterr().err and precious.read_text() == "keep me"
     assert main(["emulate", "maestro", "--fault", "drop:0"]) == 2
     assert "drop takes a count" in capsys.readouterr().err
+
+
+def test_servo_tools_take_the_backends_declared_options(capsys) -> None:  # type: ignore[no-untyped-def]
+    """The tools' bus flags are the dynamixel backend's options: same names, ranges and help."""
+    with pytest.raises(SystemExit) as info:
+        main(["servo", "monitor", "--help"])
+    assert info.value.code == 0
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "--latency-ms LATENCY_MS USB adapter latency timer" in help_text and "from 0 to 255" in help_text
+    assert main(["servo", "monitor", "--latency-ms", "999", "--once"]) == 2
+    assert "backend dynamixel: option 'latency_ms' must be between 0 and 255, got 999" in capsys.readouterr().err
+    assert main(["servo", "monitor", "--baudrate", "fast", "--once"]) == 2
+    assert "option 'baudrate' must be a whole number, got 'fast'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as info:
+        main(["servo", "monitor", "--rate", "1e9"])
+    assert info.value.code == 2 and "expected a number from 0.2 to 30" in capsys.readouterr().err
