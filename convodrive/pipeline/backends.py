@@ -20,7 +20,7 @@ from convodrive.motion.targets import TargetSpec
 from convodrive.pipeline.config import RunConfig, check_sections
 from convodrive.plugins import BACKEND_GROUP, load_plugin
 from convodrive.plugins.options import check_options, merge_options
-from convodrive.plumbing.errors import UserError
+from convodrive.plumbing.errors import InputFileError, UserError
 from convodrive.scheduler import Route
 
 
@@ -58,6 +58,10 @@ def make_backends(
         layers: list[tuple[str, Mapping[str, Any] | None]] = []
         if profile is not None and profile is not config.profile:
             check_sections(profile.sections, str(profile.path))
+            if "profile" in profile.backend_options(name):
+                raise InputFileError(
+                    profile.path, f"backends.{name}.profile: a profile cannot choose another (use a run config or -B)"
+                )
             layers.append((str(profile.path), profile.backend_options(name)))
         layers += [(config.where, config_layer), ("", cli_layer)]
         options = merge_options(cls.Options, layers, plugin=plugin)

@@ -178,3 +178,15 @@ def test_plugins_name_lists_options(capsys) -> None:  # type: ignore[no-untyped-
     assert main(["plugins", "record"]) == 0
     assert "stem" in capsys.readouterr().out
     one_line_error(capsys, ["plugins", "mujco"], "unknown plugin 'mujco' (did you mean 'mujoco'?)")
+
+
+def test_a_profile_cannot_choose_another_profile(capsys, tone_dialogue: Path, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    profile = tmp_path / "head.yaml"
+    text = resolve_profile_path("servo_head").read_text()
+    profile.write_text(text.replace("  dynamixel:\n", "  mujoco: {profile: convo_humanoid}\n  dynamixel:\n", 1))
+    run = config(tmp_path, f"backends: {{mujoco: {{profile: {profile}}}}}")
+    one_line_error(
+        capsys,
+        drive(tone_dialogue, tmp_path, "--backend", "mujoco", "--config", str(run)),
+        f"{profile}: backends.mujoco.profile: a profile cannot choose another",
+    )
