@@ -209,9 +209,9 @@ class DynamixelBackend(ServoBackend):
             if h.lost and name not in lost_before:
                 self._event("servo_lost", name, f"no status packet after {bus.retries} retries")
             if h.timeouts:
-                self._faults.add(f"lost_replies:{name}")
+                self._add_fault("lost_replies", name, f"{h.timeouts} status read(s) timed out")
             if h.corrupt:
-                self._faults.add(f"bad_crc:{name}")
+                self._add_fault("bad_crc", name, f"{h.corrupt} status packet(s) failed their checksum")
         recovered = sorted(lost_before & set(data))
         if recovered:
             self._event("servo_recovered", ",".join(recovered), "answering again; re-initialised", fault=False)

@@ -19,6 +19,7 @@ bundled model named like the target.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import os
 import time
@@ -32,6 +33,8 @@ from convodrive.backends.base import Backend, RobotOptions, Session
 from convodrive.motion.targets import TargetFrame, TargetSpec
 from convodrive.plugins.options import PluginOptions, option
 from convodrive.plumbing.errors import InputFileError, UserError
+
+log = logging.getLogger(__name__)
 
 NECK_HEAD = ("neck", "head")
 
@@ -162,6 +165,7 @@ class MujocoBackend(Backend):
         if self.options.video:
             if self.gl is None:
                 self.video_error = gl_reason
+                log.warning("mujoco: no video: %s", gl_reason)
             else:
                 self._open_video(session)
         if self.options.viewer and not os.environ.get("DISPLAY"):
@@ -307,6 +311,7 @@ class MujocoBackend(Backend):
 
     def _drop_video(self, reason: str) -> None:
         self.video_error = reason
+        log.warning("mujoco: video dropped: %s", reason)
         if self._writer is not None:
             self._writer.abort()
         self._writer = None

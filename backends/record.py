@@ -6,28 +6,31 @@ On ``close`` it writes, each file atomically, into the session's output folder:
 ``names`` (J,), ``values`` (T, J), ``time`` (T,); named ``{stem}_targets.npz`` for another stem).
 Frames that never arrived (dropped in real time) are filled by holding the previous frame, so the
 files have one frame per 1/30 s up to the last frame of the run; the report counts them.
+
+Frames go to disk as they arrive (a spool folder beside the outputs, removed at close), and the
+files are written from it block by block, so a run of any length records in constant memory.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Mapping
+import shutil
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from convodrive.backends.base import Backend, Session
-from convodrive.motion.bvh import write_bvh
-from convodrive.motion.channels import NUM_BLENDSHAPES
-from convodrive.motion.clip import MotionClip
-from convodrive.motion.livelink import write_livelink_csv
-from convodrive.motion.npz import save_clip
-from convodrive.motion.skeleton import NUM_JOINTS
+from convodrive.motion.bvh import write_bvh_blocks
+from convodrive.motion.clip import MotionFrame
+from convodrive.motion.livelink import write_livelink_blocks
+from convodrive.motion.npz import CLIP_FIELDS, write_clip_arrays
 from convodrive.motion.targets import TargetFrame, TargetSpec
 from convodrive.plugins.options import PluginOptions, check_file_name, option
-from convodrive.plumbing.atomic import atomic_path
+from convodrive.plumbing.npzfile import Blocks, write_npz
+from convodrive.plumbing.spool import RowSpool, spool_folder
 
 log = logging.getLogger(__name__)
 
@@ -50,60 +53,91 @@ class RecordBackend(Backend):
     def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
         super().__init__(options)
         self.stem = self.options.stem
-        self._takes: list[dict[str, np.ndarray]] = []
-        self._values = np.zeros((0, 0), np.float32)
-        self._received = np.zeros(0, bool)
+        self._folder: Path | None = None
+        self._takes: list[RowSpool] = []
+        self._values: RowSpool | None = None
+        self._last: tuple[list[dict[str, np.ndarray]], dict[str, np.ndarray]] | None = None
+        self._next = 0  # the index the next frame written will have
+        self._received = 0
+        self._filled = 0
+        self._out_of_order = 0
         self._written: list[Path] = []
         self._errors: list[str] = []
-        self._filled = 0
-        self._num_frames = 0
 
     def open(self, spec: TargetSpec, session: Session) -> None:
         super().open(spec, session)
         session.out_dir.mkdir(parents=True, exist_ok=True)
+        self._folder = spool_folder(session.out_dir, self.stem)
 
     def send(self, frame: TargetFrame) -> None:
-        # Compact float32 rows (under 1 kB a frame and take): a two-hour session is ~200 MB a take.
+        if self._folder is None:
+            raise RuntimeError("record: send() before open()")
         if not self._takes:
-            self._takes = [_empty_take(0) for _ in frame.takes]
-            self._values = np.zeros((0, len(self.spec.names)), np.float32)
-        i = frame.index
-        if i >= len(self._received):
-            self._grow(max(2 * len(self._received), i + 1, 256))
-        for k, take in enumerate(self._takes):
-            m = frame.takes[min(k, len(frame.takes) - 1)]
-            take["pose"][i], take["translation"][i], take["face"][i] = m.pose, m.translation, m.face
-            take["vad"][i], take["state"][i] = m.vad, int(m.state)
-        if len(self.spec.names):
-            self._values[i] = frame.values
-        self._received[i] = True
+            self._takes = [RowSpool(self._folder / f"take{k}", CLIP_FIELDS) for k in range(len(frame.takes))]
+            if self.spec.names:
+                joints = len(self.spec.names)
+                self._values = RowSpool(self._folder / "targets", {"values": ((joints,), np.dtype(np.float32))})
+        if frame.index < self._next:  # already written (or filled): never rewrite the past
+            self._out_of_order += 1
+            return
+        rows = [_row(frame.takes[min(k, len(frame.takes) - 1)]) for k in range(len(self._takes))]
+        values = {"values": np.asarray(frame.values, np.float32)} if self._values is not None else {}
+        gap = frame.index - self._next
+        if gap:  # dropped frames hold the previous one (the first frame, for a gap at the start)
+            held_rows, held_values = self._last if self._last is not None else (rows, values)
+            self._append(held_rows, held_values, gap)
+            self._filled += gap
+        self._append(rows, values, 1)
+        self._last = (rows, values)
+        self._received += 1
 
-    def _grow(self, capacity: int) -> None:
-        def grown(a: np.ndarray) -> np.ndarray:
-            out = np.zeros((capacity,) + a.shape[1:], a.dtype)
-            out[: len(a)] = a
-            return out
-
-        self._takes = [{k: grown(a) for k, a in take.items()} for take in self._takes]
-        self._values = grown(self._values)
-        self._received = grown(self._received)
+    def _append(self, rows: list[dict[str, np.ndarray]], values: dict[str, np.ndarray], times: int) -> None:
+        for spool, row in zip(self._takes, rows):
+            spool.append(row, times)
+        if self._values is not None:
+            self._values.append(values, times)
+        self._next += times
 
     def close(self) -> None:
         """Write every output; a failed file is absent (never partial) and is reported, then raised."""
-        if self.session is None:
+        if self.session is None or self._folder is None:
             return
-        clips, values, times = self._assemble()
-        out = self.session.out_dir
+        try:
+            self._write_outputs()
+        finally:
+            for spool in [*self._takes, *([self._values] if self._values else [])]:
+                spool.close()
+            shutil.rmtree(self._folder, ignore_errors=True)
+            self._folder = None
+        if self._errors:
+            raise OSError(f"record: {len(self._errors)} output(s) failed: {self._errors[0]}")
+
+    def _write_outputs(self) -> None:
+        assert self.session is not None
+        out, fps, total = self.session.out_dir, self.session.fps, self._next
         jobs: list[tuple[Path, Any]] = []
-        for i, clip in enumerate(clips):
-            name = f"{self.stem}.npz" if i == 0 else f"{self.stem}_take{i}.npz"
-            jobs.append((out / name, lambda p, c=clip: save_clip(c, p)))
-        if clips:
-            jobs.append((out / f"{self.stem}.bvh", lambda p: write_bvh(clips[0], p)))
-            jobs.append((out / f"{self.stem}_livelink.csv", lambda p: write_livelink_csv(clips[0], p)))
-        if self.spec.names:
+        for k, spool in enumerate(self._takes):
+            name = f"{self.stem}.npz" if k == 0 else f"{self.stem}_take{k}.npz"
+            arrays = {field: _blocks(spool, field) for field in CLIP_FIELDS}
+            metadata = {"take": k, "seed": self.session.seed}
+            jobs.append((out / name, lambda p, a=arrays, m=metadata: write_clip_arrays(p, a, fps, m)))
+        if self._takes and total:
+            take = self._takes[0]
+            jobs.append(
+                (
+                    out / f"{self.stem}.bvh",
+                    lambda p: write_bvh_blocks(p, total, fps, _pairs(take, "pose", "translation")),
+                )
+            )
+            jobs.append(
+                (
+                    out / f"{self.stem}_livelink.csv",
+                    lambda p: write_livelink_blocks(p, fps, _pairs(take, "face", "pose")),
+                )
+            )
+        if self.spec.names and self._values is not None:
             name = "targets.npz" if self.stem == "motion" else f"{self.stem}_targets.npz"
-            jobs.append((out / name, lambda p: self._save_targets(p, values, times)))
+            jobs.append((out / name, self._save_targets))
         for path, write in jobs:
             try:
                 write(path)
@@ -111,53 +145,29 @@ class RecordBackend(Backend):
             except Exception as exc:  # one failed file must not stop the others
                 log.error("record: cannot write %s: %s", path, exc)
                 self._errors.append(f"{path}: {exc.__class__.__name__}: {exc}")
-        if self._errors:
-            raise OSError(f"record: {len(self._errors)} output(s) failed: {self._errors[0]}")
 
-    def _assemble(self) -> tuple[list[MotionClip], np.ndarray, np.ndarray]:
-        """Clips per take and target values, one frame per index, gaps held from the previous frame."""
-        assert self.session is not None
-        got = np.flatnonzero(self._received)
-        if not len(got):
-            return [], np.zeros((0, len(self.spec.names))), np.zeros(0)
-        # Up to the newest frame received: the scheduler always delivers a run's last frame, and a run
-        # stopped early (Ctrl-C) must not be padded out to the audio's length.
-        total = int(got[-1]) + 1
-        received = np.zeros(total, bool)
-        received[: min(total, len(self._received))] = self._received[:total]
-        # Each frame's source: the latest received index at or before it (the first one for a gap at the start).
-        source = np.maximum.accumulate(np.where(received, np.arange(total), -1))
-        source[source < 0] = got[0]
-        self._num_frames, self._filled = total, int(total - received.sum())
-        fps = self.session.fps
-        clips = [
-            MotionClip(
-                **{k: a[source] for k, a in take.items()}, fps=fps, metadata={"take": k, "seed": self.session.seed}
-            )
-            for k, take in enumerate(self._takes)
-        ]
-        return clips, self._values[source], np.arange(total) / fps
-
-    def _save_targets(self, path: Path, values: np.ndarray, times: np.ndarray) -> None:
-        with atomic_path(path) as tmp:
-            with open(tmp, "wb") as fh:
-                np.savez_compressed(
-                    fh,
-                    names=np.array(self.spec.names),
-                    values=values.astype(np.float32),
-                    time=times,
-                    units=np.array(self.spec.units),
-                    spec=np.array(self.spec.name),
-                )
+    def _save_targets(self, path: Path) -> None:
+        assert self._values is not None and self.session is not None
+        write_npz(
+            path,
+            {
+                "names": np.array(self.spec.names),
+                "values": _blocks(self._values, "values"),
+                "time": Blocks((self._next,), np.dtype(np.float64), lambda: _times(self._next, self.session.fps)),
+                "units": np.array(self.spec.units),
+                "spec": np.array(self.spec.name),
+            },
+        )
 
     def health(self) -> dict[str, Any]:
-        return {"status": "failed" if self._errors else "ok", "frames_received": int(self._received.sum())}
+        return {"status": "failed" if self._errors else "ok", "frames_received": self._received}
 
     def report(self) -> dict[str, Any]:
         return {
-            "frames_received": int(self._received.sum()),
+            "frames_received": self._received,
             "frames_filled": self._filled,
-            "frames_written": self._num_frames,
+            "frames_written": self._next,
+            "frames_out_of_order": self._out_of_order,
             "outputs": [str(p) for p in self._written],
             "errors": list(self._errors),
         }
@@ -166,11 +176,25 @@ class RecordBackend(Backend):
         return list(self._written)
 
 
-def _empty_take(capacity: int) -> dict[str, np.ndarray]:
+def _row(motion: MotionFrame) -> dict[str, np.ndarray]:
     return {
-        "pose": np.zeros((capacity, NUM_JOINTS, 3), np.float32),
-        "translation": np.zeros((capacity, 3), np.float32),
-        "face": np.zeros((capacity, NUM_BLENDSHAPES), np.float32),
-        "vad": np.zeros((capacity, 2), np.float32),
-        "state": np.zeros(capacity, np.int8),
+        "pose": motion.pose,
+        "translation": motion.translation,
+        "face": motion.face,
+        "vad": motion.vad,
+        "state": np.int8(int(motion.state)),
     }
+
+
+def _blocks(spool: RowSpool, field: str) -> Blocks:
+    shape, dtype = spool.fields[field]
+    return Blocks((spool.rows, *shape), dtype, lambda: spool.blocks(field))
+
+
+def _pairs(spool: RowSpool, a: str, b: str) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    return zip(spool.blocks(a), spool.blocks(b))
+
+
+def _times(count: int, fps: float, block: int = 4096) -> Iterator[np.ndarray]:
+    for start in range(0, count, block):
+        yield np.arange(start, min(start + block, count)) / fps

@@ -11,6 +11,7 @@ Options: ``RenderOptions`` below (``convodrive plugins render`` lists them).
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import time
 from collections.abc import Mapping
@@ -28,6 +29,8 @@ from convodrive.plumbing.errors import UserError
 
 MAX_VIDEO_SIDE = 8192
 """Widest or tallest video the grid of takes may make (H.264's largest frames)."""
+log = logging.getLogger(__name__)
+
 CONTACT_CELLS = 12
 CONTACT_COLUMNS = 4
 THUMB_WIDTH = 320
@@ -132,6 +135,7 @@ class RenderBackend(Backend):
             self.realtime = True  # type: ignore[misc]  # a live window is paced by the wall clock
         elif self.want_window:
             self.window_note = "window requested but no display (DISPLAY unset): rendering to file only"
+            log.warning("render: %s", self.window_note)
         self._renderer: AvatarRenderer | None = None
         self._writer: Any = None
         self._window: Any = None
@@ -172,6 +176,7 @@ class RenderBackend(Backend):
                 self._window = LiveWindow("convodrive avatar")
             except Exception as exc:  # no Tk, display refused: keep the file output
                 self.window_note = f"live window unavailable ({exc}); rendering to file only"
+                log.warning("render: %s", self.window_note)
 
     def _open_writer(self, takes: int) -> None:
         from convodrive.plumbing.video import VideoWriter
@@ -207,6 +212,7 @@ class RenderBackend(Backend):
                 self._window.show(image)
             except Exception as exc:  # window closed by the user: keep filming
                 self.window_note = f"live window closed ({exc})"
+                log.warning("render: %s", self.window_note)
                 self._window = None
         self._frames += 1
         self._wall += time.perf_counter() - t0

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import abc
 import collections
+import logging
 import re
 import threading
 import time
@@ -28,6 +29,9 @@ from convodrive.backends.servo.servo_options import ServoOptions
 from convodrive.motion.targets import TargetFrame, TargetSpec
 from convodrive.plugins.options import PluginOptions
 from convodrive.plumbing.errors import UserError
+
+log = logging.getLogger(__name__)
+_LOG_REPEAT_S = 5.0
 
 MAX_EVENTS = 100
 TICK_HZ = 30.0
@@ -75,6 +79,7 @@ class ServoBackend(Backend):
         self._reconnect_after = 0.0
         self._events: list[dict[str, Any]] = []
         self._faults: set[str] = set()
+        self._last_logged: dict[tuple[str, str | None], float] = {}
         self._counts: collections.Counter[str] = collections.Counter()
         self._write_ms: collections.deque[float] = collections.deque(maxlen=10_000)
         self._read_ms: collections.deque[float] = collections.deque(maxlen=10_000)
@@ -275,10 +280,26 @@ class ServoBackend(Backend):
 
     # ---------------------------------------------------------------- reporting
     def _event(self, kind: str, joint: str | None, detail: str, fault: bool = True) -> None:
+        # Logged as it happens; the same event again within a few seconds (a servo refusing every
+        # frame) only at debug level, the report counts them all.
+        now = time.monotonic()
+        repeat = now - self._last_logged.get((kind, joint), -1e9) < _LOG_REPEAT_S
+        if not repeat:
+            self._last_logged[(kind, joint)] = now
+        level = logging.DEBUG if repeat else logging.WARNING if fault else logging.INFO
+        log.log(level, "%s: %s%s: %s", self.name, kind, f" {joint}" if joint else "", detail)
         if fault:
             self._faults.add(f"{kind}:{joint}" if joint else kind)
         if len(self._events) < MAX_EVENTS:
             self._events.append({"t": round(time.monotonic(), 3), "event": kind, "joint": joint, "detail": detail})
+
+    def _add_fault(self, kind: str, joint: str | None, detail: str) -> None:
+        """A fault counted by the driver rather than seen as one event: kept for the report, and
+        logged the first time it is seen."""
+        key = f"{kind}:{joint}" if joint else kind
+        if key not in self._faults:
+            self._faults.add(key)
+            log.warning("%s: %s%s: %s", self.name, kind, f" {joint}" if joint else "", detail)
 
     def health(self) -> dict[str, Any]:
         """Live snapshot: ``degraded`` while anything is wrong now; ``faults`` lists all seen so far."""

@@ -6,8 +6,8 @@ the utterance and are skipped: the decoder only hears speech, which keeps it fas
 cost of reading back each partial segmentation.
 
 The decoder runs on a cut-down copy of that model (``viseme_model``): 21 phones, one to three
-per viseme class, with their 64 heaviest Gaussians each, written once per process to a temporary
-folder. It decodes 3.5x faster than the full model did and finds the visemes as often.
+per viseme class, with their 64 heaviest Gaussians each, written once per machine to the user's
+cache folder. It decodes 3.5x faster than the full model did and finds the visemes as often.
 
 ``viseme_at`` answers, after block b has been decoded, which viseme covers a motion frame, or
 ``-1`` where the decoder has nothing for that time (not decoded yet, or a skipped quiet block):
@@ -29,6 +29,7 @@ import numpy as np
 from convodrive.audio.source import CHUNK_SAMPLES
 from convodrive.audio.visemes import phone_viseme
 from convodrive.plumbing.atomic import write_bytes_atomic, write_text_atomic
+from convodrive.plumbing.cache import cache_key, cached_folder
 
 BLOCK = CHUNK_SAMPLES
 _MAX_UTTERANCE_BLOCKS = 150  # 15 s; longer speech is decoded in pieces
@@ -214,22 +215,43 @@ _MODEL_DIR: Path | None = None
 
 
 def viseme_model() -> Path:
-    """pocketsphinx's English model cut down to ``VISEME_PHONES``, written once per process to a
-    temporary folder; the full model where its files are not laid out as expected."""
+    """pocketsphinx's English model cut down to ``VISEME_PHONES``, made once per machine in the
+    user's cache (``convodrive.plumbing.cache``: no temporary folder to leak when a run is killed);
+    in a temporary folder removed at exit where the cache cannot be written; the full model where
+    its files are not laid out as expected."""
     global _MODEL_DIR
     from pocketsphinx import get_model_path
 
     source = Path(get_model_path("en-us/en-us"))
     if _MODEL_DIR is None:
-        folder = Path(tempfile.mkdtemp(prefix="convodrive-phones-"))
-        atexit.register(_remove, folder, os.getpid())
         try:
-            _write_reduced_model(source, folder, VISEME_PHONES)
-            _MODEL_DIR = folder
-        except (OSError, ValueError, struct.error):
-            shutil.rmtree(folder, True)
+            key = cache_key([_REDUCED_FORMAT, VISEME_PHONES, DENSITIES, *map(_identity, sorted(source.iterdir()))])
+            _MODEL_DIR = cached_folder("phones", key, lambda dest: _write_reduced_model(source, dest, VISEME_PHONES))
+        except OSError:
+            _MODEL_DIR = _temporary_model(source)
+        except (ValueError, struct.error):
             _MODEL_DIR = source
     return _MODEL_DIR
+
+
+_REDUCED_FORMAT = 1
+"""Bump when ``_write_reduced_model`` writes something else, so cached models are made anew."""
+
+
+def _identity(path: Path) -> tuple[str, int, int]:
+    stat = path.stat()
+    return path.name, stat.st_size, stat.st_mtime_ns
+
+
+def _temporary_model(source: Path) -> Path:
+    folder = Path(tempfile.mkdtemp(prefix="convodrive-phones-"))
+    atexit.register(_remove, folder, os.getpid())
+    try:
+        _write_reduced_model(source, folder, VISEME_PHONES)
+        return folder
+    except (OSError, ValueError, struct.error):
+        shutil.rmtree(folder, True)
+        return source
 
 
 def _remove(folder: Path, owner: int) -> None:

@@ -8,12 +8,13 @@ memory and the chunks join seamlessly (they equal resampling the whole file at o
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from fractions import Fraction
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 import soundfile as sf
@@ -135,9 +136,35 @@ class AudioSource:
 
     def _check_finite(self) -> None:
         with sf.SoundFile(self.path) as fh:
-            for block in fh.blocks(blocksize=int(_BLOCK_SECONDS * fh.samplerate), dtype="float32", always_2d=True):
-                if not np.all(np.isfinite(block)):
-                    raise InputFileError(self.path, "audio holds NaN or infinite samples")
+            blocks = fh.blocks(blocksize=int(_BLOCK_SECONDS * fh.samplerate), dtype="float32", always_2d=True)
+            with self._decoding(lambda: fh.tell()):
+                for block in blocks:
+                    if not np.all(np.isfinite(block)):
+                        raise InputFileError(self.path, "audio holds NaN or infinite samples")
+
+    @contextlib.contextmanager
+    def _decoding(self, position: Callable[[], int]) -> Iterator[None]:
+        """Turn a decoder failure (corrupt or truncated data) into an ``AudioDecodeError``."""
+        try:
+            yield
+        except (sf.LibsndfileError, RuntimeError) as exc:
+            try:
+                seconds = position() / self.info.sample_rate
+            except Exception:  # the file handle may be unusable after the failure
+                seconds = 0.0
+            detail = str(exc).split(":")[-1].strip().rstrip(".") or exc.__class__.__name__
+            raise AudioDecodeError(self.path, seconds, detail) from None
+
+    def describe(self) -> dict[str, Any]:
+        """What the run report says of the audio."""
+        return {
+            "path": str(self.path),
+            "sample_rate": self.info.sample_rate,
+            "channels": self.info.channels,
+            "duration_s": round(self.duration, 3),
+            "self_channel": self.channel_map.self_channel,
+            "other_channel": self.channel_map.other_channel,
+        }
 
     def _open(self, cols: list[int]) -> _Reader:
         if self.info.decoder == "ffmpeg":
@@ -188,7 +215,8 @@ class AudioSource:
         cols = [self.channel_map.self_channel] + (
             [self.channel_map.other_channel] if self.channel_map.other_channel is not None else []
         )
-        with self._open(cols) as reader:
+        decoded = 0  # native samples handed out so far, for the position of a decoding error
+        with self._open(cols) as reader, self._decoding(lambda: decoded):
             history = np.zeros((ctx, len(cols)), np.float32)
             ahead = reader.read(block + ctx)
             dry = len(ahead) < block + ctx
@@ -211,6 +239,7 @@ class AudioSource:
                 first = ctx * up // down
                 count = current_len * up // down if not last else math.ceil(current_len * up / down)
                 out = out[first : first + count]
+                decoded += current_len
                 yield out[:, 0], (out[:, 1] if out.shape[1] > 1 else np.zeros(len(out), np.float32)), last
                 history = window[current_len : current_len + ctx] if ctx else history
                 ahead = ahead[current_len:]
@@ -248,6 +277,33 @@ class _Columns:
 
     def __exit__(self, *exc: object) -> None:
         self._reader.close()
+class AudioDecodeError(InputFileError):
+    """The audio stopped decoding part-way (corrupt or truncated data): the run ends there."""
+
+    def __init__(self, path: object, seconds: float, detail: str) -> None:
+        self.seconds = seconds
+        super().__init__(path, f"the audio cannot be decoded after {seconds:.2f} s ({detail})")
+
+
+class SilentSource:
+    """Silence of a given length, read like an ``AudioSource``: the clock of a run with no audio
+    file, such as ``convodrive render`` of saved motion without ``--audio``."""
+
+    def __init__(self, duration: float) -> None:
+        if not duration > 0:
+            raise ValueError(f"silence must last a positive time, got {duration}")
+        self.duration = float(duration)
+        self.num_samples = max(1, int(round(self.duration * ANALYSIS_RATE)))
+
+    def chunks(self, chunk_samples: int = CHUNK_SAMPLES) -> Iterator[AudioChunk]:
+        silence = np.zeros(chunk_samples, np.float32)
+        for start in range(0, self.num_samples, chunk_samples):
+            stop = min(start + chunk_samples, self.num_samples)
+            part = silence[: stop - start]
+            yield AudioChunk(start, part, part, final=stop >= self.num_samples)
+
+    def describe(self) -> dict[str, Any]:
+        return {"path": None, "silence": True, "duration_s": round(self.duration, 3)}
 
 
 def probe_audio(path: str | Path) -> AudioInfo:

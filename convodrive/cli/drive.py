@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from pathlib import Path
 
@@ -10,6 +11,9 @@ from convodrive.cli.options import backend_key_value, channel_map, int_in, key_v
 from convodrive.cli.progress import frame_progress
 from convodrive.pipeline import DEFAULT_GENERATOR, MAX_SAMPLES, DriveRequest, DriveResult, drive
 from convodrive.plumbing.errors import UserError
+from convodrive.plumbing.logs import FILE_ONLY
+
+log = logging.getLogger(__name__)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -65,7 +69,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="SELF,OTHER",
         help="which file channels are self and partner (needed for files with more than 2 channels)",
     )
-    p.add_argument("--motion", type=Path, metavar="FILE", help="motion file for the replay generator (.npz or .bvh)")
+    p.add_argument(
+        "--motion",
+        type=Path,
+        metavar="FILE",
+        help="motion file for the replay generator (.npz, .bvh or Live Link .csv)",
+    )
     p.add_argument(
         "-G",
         "--generator-option",
@@ -118,14 +127,26 @@ def run(args: argparse.Namespace) -> int:
     with frame_progress("driving", enabled=request.realtime is not True) as progress:
         result = drive(request, on_frame=progress, on_start=started)
     print_result(result)
-    return 130 if result.report["interrupted"] else 0
+    return exit_code(result)
 
 
 def print_result(result: DriveResult) -> None:
     from convodrive.scheduler.report import summarize
 
-    print(summarize(result.report))
+    summary = summarize(result.report)
+    print(summary)
     for path in result.outputs:
         print(f"wrote {path}")
     print(f"run report: {result.report_path}")
     sys.stdout.flush()
+    log.info("run summary (report: %s)\n%s", result.report_path, summary, extra=FILE_ONLY)
+
+
+def exit_code(result: DriveResult) -> int:
+    """2 when the input stopped the run part-way (said in one line on stderr), 130 when interrupted."""
+    if result.report.get("input_error"):
+        message = f"{result.report['input_error']}; the run stopped there"
+        sys.stderr.write(f"convodrive: error: {message}\n")
+        log.error("%s", message, extra=FILE_ONLY)
+        return 2
+    return 130 if result.report["interrupted"] else 0

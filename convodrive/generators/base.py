@@ -42,6 +42,11 @@ class Generator(abc.ABC):
         ``motion_frames_for``) and then ends.
         """
 
+    def report(self) -> dict[str, Any]:
+        """JSON-able notes for the run report, asked after the run: ``warnings`` (a list of lines)
+        is shown to the user; anything else is kept in the report's ``generator`` section."""
+        return {}
+
     def stream_takes(self, chunks: Iterable[AudioChunk], seeds: Sequence[int]) -> Iterator[tuple[MotionFrame, ...]]:
         """Several takes of one audio stream, frame by frame: one frame per seed at each step.
 

@@ -1,4 +1,5 @@
-"""Live Link Face CSV export: the take format of Epic's Live Link Face app, which face rigs import.
+"""Live Link Face CSV export and import: the take format of Epic's Live Link Face app, which face
+rigs import.
 
 One row per frame: ``Timecode`` (HH:MM:SS:FF.mmm, FF counting frames at the clip's rate and mmm
 the sub-frame in thousandths), ``BlendShapeCount`` (61 = 52 blendshapes + 9 rotations), the 52
@@ -10,20 +11,31 @@ columns by name, and so do we. Rotations use our skeleton's axes (Y up, facing +
 character's left +X): yaw about Y, pitch about X, roll about Z, R = Ry(yaw) Rx(pitch) Rz(roll).
 The head's is its global orientation (pelvis through neck to head, by forward kinematics); each
 eye's is relative to the head, as an eye-tracking camera sees it.
+
+``read_livelink_csv`` imports such a take (ours or the app's): face channels by column name, the
+head's rotation onto the head joint (the spine and neck stay at rest, so its global rotation is the
+file's), the eyes' onto the eye joints, and the jaw joint from ``jawOpen``. The body, root and voice
+activity are not in the format and stay at rest. The frame rate is read from the timecodes: the
+common rate at which consecutive rows are one frame apart (30 when a take is too short to tell).
 """
 
 from __future__ import annotations
 
+import csv
 import os
+import re
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 
+from convodrive import FPS
 from convodrive.motion import rotations
-from convodrive.motion.channels import ARKIT_NAMES, BLENDSHAPE_INDEX
+from convodrive.motion.channels import ARKIT_NAMES, BLENDSHAPE_INDEX, JAW_OPEN_RAD, NUM_BLENDSHAPES
 from convodrive.motion.clip import MotionClip
-from convodrive.motion.skeleton import JOINT_INDEX, global_rotation
+from convodrive.motion.skeleton import JOINT_INDEX, NUM_JOINTS, global_rotation
 from convodrive.plumbing.atomic import atomic_path
+from convodrive.plumbing.errors import InputFileError
 
 BLENDSHAPE_COUNT = 61
 _SWAPS = {"jawLeft": "jawRight", "jawRight": "jawLeft", "mouthLeft": "mouthRight", "mouthRight": "mouthLeft"}
@@ -73,14 +85,131 @@ def head_eye_rotations(pose: np.ndarray) -> np.ndarray:
 
 def write_livelink_csv(clip: MotionClip, path: str | os.PathLike[str]) -> Path:
     """Write ``clip`` as a Live Link Face CSV (atomically)."""
+    blocks = (
+        (clip.face[start : start + _BLOCK], clip.pose[start : start + _BLOCK])
+        for start in range(0, clip.num_frames, _BLOCK)
+    )
+    return write_livelink_blocks(path, clip.fps, blocks)
+
+
+def write_livelink_blocks(
+    path: str | os.PathLike[str], fps: float, blocks: Iterable[tuple[np.ndarray, np.ndarray]]
+) -> Path:
+    """Write frames given as (face (n, 52), pose (n, 55, 3)) blocks of consecutive frames, atomically:
+    hours of motion in bounded memory."""
     path = Path(path)
-    face = clip.face[:, [BLENDSHAPE_INDEX[n] for n in LIVELINK_BLENDSHAPES]]
+    columns = [BLENDSHAPE_INDEX[n] for n in LIVELINK_BLENDSHAPES]
     with atomic_path(path) as tmp:
         with open(tmp, "w", encoding="ascii", newline="") as fh:
             fh.write(",".join(HEADER) + "\r\n")
-            for start in range(0, clip.num_frames, _BLOCK):  # in blocks: hours of motion in bounded memory
-                angles = head_eye_rotations(clip.pose[start : start + _BLOCK])
-                for i, row in enumerate(np.concatenate([face[start : start + _BLOCK], angles], axis=1), start):
-                    values = ",".join(f"{v:.6f}" for v in row)
-                    fh.write(f"{timecode(i / clip.fps, clip.fps)},{BLENDSHAPE_COUNT},{values}\r\n")
+            index = 0
+            row_format = f"%s,{BLENDSHAPE_COUNT}," + ",".join(["%.6f"] * (len(columns) + 9)) + "\r\n"
+            for face, pose in blocks:
+                angles = head_eye_rotations(pose)
+                for row in np.concatenate([face[:, columns], angles], axis=1).tolist():
+                    fh.write(row_format % (timecode(index / fps, fps), *row))
+                    index += 1
     return path
+
+
+# ---------------------------------------------------------------- import
+
+COMMON_RATES = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 90.0, 100.0, 120.0)
+_TIMECODE = re.compile(r"(\d+):(\d{1,2}):(\d{1,2}):(\d+)(?:\.(\d+))?")
+_MAX_GAP_SECONDS = 10.0
+"""Missing rows are held from the previous one; a longer jump in the timecodes is refused."""
+
+
+def read_livelink_csv(path: str | os.PathLike[str]) -> MotionClip:
+    """Import a Live Link Face CSV take as a clip (see the module notes)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(path, "no such file")
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            rows = list(csv.reader(fh))
+    except UnicodeDecodeError:
+        raise InputFileError(path, "not a Live Link Face CSV (not text)") from None
+    except (OSError, csv.Error) as exc:
+        raise InputFileError(path, f"cannot read ({getattr(exc, 'strerror', None) or exc})") from None
+    if not rows or not rows[0] or rows[0][0].strip() != "Timecode":
+        raise InputFileError(path, "line 1: not a Live Link Face CSV (expected a 'Timecode' column first)")
+    columns = {name.strip().lower(): k for k, name in enumerate(rows[0])}
+    face_cols = {n: columns.get(n.lower()) for n in ARKIT_NAMES}
+    if all(c is None for c in face_cols.values()):
+        raise InputFileError(path, "line 1: no ARKit blendshape column (e.g. JawOpen, EyeBlinkLeft)")
+    rotation_cols = [columns.get(n.lower()) for n in ROTATION_COLUMNS]
+    body = [(n, row) for n, row in enumerate(rows[1:], start=2) if any(cell.strip() for cell in row)]
+    if not body:
+        raise InputFileError(path, "holds no frames")
+    times = np.empty((len(body), 3))  # whole seconds, frame number, sub-frame
+    values = np.zeros((len(body), NUM_BLENDSHAPES + len(ROTATION_COLUMNS)))
+    wanted = [(k, c) for k, c in enumerate(list(face_cols.values()) + rotation_cols) if c is not None]
+    for i, (line, row) in enumerate(body):
+        match = _TIMECODE.fullmatch(row[0].strip())
+        if match is None:
+            raise InputFileError(path, f"line {line}: timecode {row[0][:40]!r} is not HH:MM:SS:FF.mmm")
+        hh, mm, ss, ff, sub = match.groups()
+        times[i] = (int(hh) * 3600 + int(mm) * 60 + int(ss), int(ff), float(f"0.{sub}") if sub else 0.0)
+        try:
+            for k, c in wanted:
+                values[i, k] = float(row[c])
+        except (IndexError, ValueError):
+            raise InputFileError(path, f"line {line}: a value is missing or not a number") from None
+        if not np.all(np.isfinite(values[i])):
+            raise InputFileError(path, f"line {line}: holds NaN or infinite values")
+    fps = _timecode_rate(times)
+    index = _frame_indices(path, times, fps, [line for line, _ in body])
+    num_frames = int(index[-1]) + 1
+    # Each output frame takes the latest row at or before it: missing rows hold the previous one.
+    source = np.searchsorted(index, np.arange(num_frames), side="right") - 1
+    values = values[source]
+
+    face = np.clip(values[:, :NUM_BLENDSHAPES], 0.0, 1.0)
+    pose = np.zeros((num_frames, NUM_JOINTS, 3))
+    angles = values[:, NUM_BLENDSHAPES:].reshape(num_frames, 3, 3)
+    for k, joint in enumerate(("head", "left_eye_smplhf", "right_eye_smplhf")):
+        pose[:, JOINT_INDEX[joint]] = rotations.euler_to_axis_angle(angles[:, k], _YAW_PITCH_ROLL)
+    pose[:, JOINT_INDEX["jaw"], 0] = face[:, BLENDSHAPE_INDEX["jawOpen"]] * JAW_OPEN_RAD
+    return MotionClip(
+        pose=pose.astype(np.float32),
+        translation=np.zeros((num_frames, 3), np.float32),
+        face=face.astype(np.float32),
+        vad=np.zeros((num_frames, 2), np.float32),
+        state=np.zeros(num_frames, np.int8),
+        fps=fps,
+        metadata={
+            "source": str(path),
+            "format": "livelink",
+            "missing_columns": [n for n, c in face_cols.items() if c is None]
+            + [n for n, c in zip(ROTATION_COLUMNS, rotation_cols) if c is None],
+        },
+    )
+
+
+def _timecode_rate(times: np.ndarray) -> float:
+    """The common rate at which most consecutive rows are one frame apart (ties: 30, then the lowest)."""
+    top = int(times[:, 1].max()) + 1
+    candidates = [r for r in COMMON_RATES if r >= top] or [float(top)]
+
+    def one_frame_steps(rate: float) -> float:
+        steps = np.diff(times[:, 0] * rate + times[:, 1] + times[:, 2])
+        return float(np.mean(np.abs(steps - 1.0) < 0.01)) if len(steps) else 1.0
+
+    return max(candidates, key=lambda r: (one_frame_steps(r), r == FPS, -r))
+
+
+def _frame_indices(path: Path, times: np.ndarray, fps: float, lines: list[int]) -> np.ndarray:
+    frames = times[:, 0] * fps + times[:, 1] + times[:, 2]
+    index = np.round(frames - frames[0]).astype(np.int64)
+    steps = np.diff(index)
+    if len(steps) and steps.min() < 0:
+        bad = int(np.argmin(steps)) + 1
+        raise InputFileError(path, f"line {lines[bad]}: timecode goes backwards")
+    if len(steps) and steps.max() > _MAX_GAP_SECONDS * fps:
+        bad = int(np.argmax(steps)) + 1
+        gap = steps.max() / fps
+        raise InputFileError(
+            path, f"line {lines[bad]}: timecode jumps {gap:.1f} s ahead (a gap of more than {_MAX_GAP_SECONDS:g} s)"
+        )
+    return index

@@ -12,38 +12,59 @@ import json
 import os
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from convodrive.motion.channels import ARKIT_NAMES
+from convodrive.motion.channels import ARKIT_NAMES, NUM_BLENDSHAPES
 from convodrive.motion.clip import MotionClip
-from convodrive.motion.skeleton import JOINT_NAMES
-from convodrive.plumbing.atomic import atomic_path
+from convodrive.motion.skeleton import JOINT_NAMES, NUM_JOINTS
 from convodrive.plumbing.errors import InputFileError
+from convodrive.plumbing.npzfile import Blocks, write_npz
 
 FORMAT_VERSION = 1
 _FORMAT_TAG = "convodrive.motion"
+CLIP_FIELDS: dict[str, tuple[tuple[int, ...], np.dtype]] = {
+    "pose": ((NUM_JOINTS, 3), np.dtype(np.float32)),
+    "translation": ((3,), np.dtype(np.float32)),
+    "face": ((NUM_BLENDSHAPES,), np.dtype(np.float32)),
+    "vad": ((2,), np.dtype(np.float32)),
+    "state": ((), np.dtype(np.int8)),
+}
+"""The per-frame arrays of a clip file: row shape and dtype."""
 
 
 def save_clip(clip: MotionClip, path: str | os.PathLike[str]) -> Path:
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(
-                fh,
-                format=np.array(_FORMAT_TAG),
-                format_version=np.array(FORMAT_VERSION),
-                fps=np.array(float(clip.fps)),
-                pose=clip.pose.astype(np.float32),
-                translation=clip.translation.astype(np.float32),
-                face=clip.face.astype(np.float32),
-                vad=clip.vad.astype(np.float32),
-                state=clip.state.astype(np.int8),
-                joint_names=np.array(JOINT_NAMES),
-                blendshape_names=np.array(ARKIT_NAMES),
-                metadata=np.array(json.dumps(clip.metadata, default=str)),
-            )
-    return path
+    return write_clip_arrays(
+        path,
+        {
+            "pose": clip.pose.astype(np.float32),
+            "translation": clip.translation.astype(np.float32),
+            "face": clip.face.astype(np.float32),
+            "vad": clip.vad.astype(np.float32),
+            "state": clip.state.astype(np.int8),
+        },
+        clip.fps,
+        clip.metadata,
+    )
+
+
+def write_clip_arrays(
+    path: str | os.PathLike[str], arrays: dict[str, np.ndarray | Blocks], fps: float, metadata: dict[str, Any]
+) -> Path:
+    """Write a clip file from its five arrays, in memory or streamed in blocks (``CLIP_FIELDS``), atomically."""
+    return write_npz(
+        path,
+        {
+            "format": np.array(_FORMAT_TAG),
+            "format_version": np.array(FORMAT_VERSION),
+            "fps": np.array(float(fps)),
+            **{name: arrays[name] for name in CLIP_FIELDS},
+            "joint_names": np.array(JOINT_NAMES),
+            "blendshape_names": np.array(ARKIT_NAMES),
+            "metadata": np.array(json.dumps(metadata, default=str)),
+        },
+    )
 
 
 def load_clip(path: str | os.PathLike[str]) -> MotionClip:

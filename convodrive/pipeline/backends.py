@@ -11,6 +11,7 @@ declared options and a mistake names the file it came from.
 from __future__ import annotations
 
 import dataclasses
+import logging
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,8 @@ from convodrive.plugins import BACKEND_GROUP, load_plugin
 from convodrive.plugins.options import check_options, merge_options
 from convodrive.plumbing.errors import InputFileError, UserError
 from convodrive.scheduler import Route
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass
@@ -85,7 +88,9 @@ def open_backends(planned: list[PlannedBackend], session: Session) -> tuple[list
                 raise
             except Exception as exc:  # hardware or driver fault: this backend only
                 failed[item.name] = f"{exc.__class__.__name__}: {exc}"
+                log.error("%s: failed to open (%s); the run goes on without it", item.name, failed[item.name])
                 continue
+            log.info("%s: open", item.name)
             retarget = None
             key = ""
             if profile is not None:

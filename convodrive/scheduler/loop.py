@@ -28,6 +28,7 @@ import numpy as np
 from convodrive import FPS
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.targets import TargetFrame
+from convodrive.plumbing.errors import UserError
 from convodrive.scheduler.clock import Clock
 from convodrive.scheduler.priority import realtime_priority
 from convodrive.scheduler.producer import FrameSource, Producer
@@ -86,14 +87,18 @@ class Scheduler:
         late = 0
         frames = 0
         drift = 0.0
+        input_error: str | None = None
         try:
             with realtime_priority(paced) as self.clock_priority:
                 for w in workers:
                     w.start()
                 self._producer.start()
                 frames, jitter, late, drift = self._clock_loop(workers)
-            if self._producer.error is not None and not isinstance(self._producer.error, KeyboardInterrupt):
-                raise self._producer.error
+            error = self._producer.error
+            if isinstance(error, UserError):  # the input ended the run (audio that stopped decoding)
+                input_error = str(error)
+            elif error is not None and not isinstance(error, KeyboardInterrupt):
+                raise error
         finally:
             self._producer.stop_event.set()
             for w in workers:
@@ -122,6 +127,7 @@ class Scheduler:
             backend_reports={w.stats.name: _safe_call(w.route.backend.report) for w in workers},
             backend_health={w.stats.name: _safe_call(w.route.backend.health) for w in workers},
             clock_priority=self.clock_priority,
+            input_error=input_error,
         )
 
     def _elapsed(self) -> float:

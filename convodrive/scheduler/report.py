@@ -34,6 +34,8 @@ class RunResult:
     backend_reports: dict[str, dict[str, Any]]
     backend_health: dict[str, dict[str, Any]]
     clock_priority: str = "normal"
+    input_error: str | None = None
+    """Set when the input failed part-way (audio that stopped decoding): the run ended there."""
 
 
 def _percentiles(values: list[float], scale: float = 1.0) -> dict[str, float] | None:
@@ -76,6 +78,7 @@ def build_report(
         "convodrive_version": __version__,
         "mode": result.mode,
         "interrupted": result.interrupted,
+        "input_error": result.input_error,
         "frames": result.frames,
         "expected_frames": result.expected_frames,
         "wall_seconds": round(result.wall_seconds, 3),
@@ -105,6 +108,10 @@ def summarize(report: dict[str, Any]) -> str:
         )
         + (" — interrupted" if report["interrupted"] else ""),
     ]
+    if report.get("input_error"):
+        lines.append(f"stopped early: {report['input_error']}")
+    for warning in report.get("warnings", []):
+        lines.append(f"warning: {warning}")
     jit = report.get("jitter_ms")
     if jit:
         lines.append(
@@ -125,9 +132,9 @@ def summarize(report: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def write_report(report: dict[str, Any], out_dir: Path) -> tuple[Path, Path]:
-    json_path = out_dir / "run_report.json"
-    text_path = out_dir / "run_report.txt"
+def write_report(report: dict[str, Any], out_dir: Path, name: str = "run_report") -> tuple[Path, Path]:
+    json_path = out_dir / f"{name}.json"
+    text_path = out_dir / f"{name}.txt"
     write_text_atomic(json_path, json.dumps(report, indent=2, default=_json_default) + "\n")
     write_text_atomic(text_path, summarize(report) + "\n")
     return json_path, text_path

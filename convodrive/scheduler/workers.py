@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -10,6 +11,8 @@ from typing import Any
 
 from convodrive.scheduler.route import Route
 from convodrive.scheduler.slots import END, BlockingSlot, DropOldestSlot
+
+log = logging.getLogger(__name__)
 
 MAX_CONSECUTIVE_ERRORS = 90
 """A backend that raised on 3 s of consecutive frames is marked failed and no longer called."""
@@ -44,6 +47,8 @@ class BackendWorker(threading.Thread):
         self.stats = BackendStats(route.backend.name)
         self._now = now
         self._last_status = "ok"
+        self._frame = -1
+        """The index of the frame last handed to the backend, for the log."""
 
     def run(self) -> None:
         backend = self.route.backend
@@ -57,6 +62,7 @@ class BackendWorker(threading.Thread):
                     self.stats.dropped += 1
                     continue
                 start = time.perf_counter()
+                self._frame = item.index
                 try:
                     backend.send(item)
                     consecutive = 0
@@ -65,6 +71,8 @@ class BackendWorker(threading.Thread):
                     consecutive += 1
                     self.stats.errors += 1
                     self.stats.last_error = f"{exc.__class__.__name__}: {exc}"
+                    if consecutive == 1:  # the first of a run of errors; the report counts them all
+                        log.warning("%s: frame %d: %s", backend.name, item.index, self.stats.last_error)
                     if consecutive >= MAX_CONSECUTIVE_ERRORS:
                         self.stats.failed = True
                         self._event("failed", self.stats.last_error)
@@ -95,3 +103,6 @@ class BackendWorker(threading.Thread):
 
     def _event(self, status: str, detail: str) -> None:
         self.stats.health_events.append({"time": round(self._now(), 3), "status": status, "detail": detail})
+        level = logging.INFO if status == "ok" else logging.ERROR if status == "failed" else logging.WARNING
+        where = f"after frame {self._frame}" if self._frame >= 0 else "at the end"
+        log.log(level, "%s: %s %s%s", self.route.backend.name, status, where, f": {detail}" if detail else "")

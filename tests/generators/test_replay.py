@@ -14,6 +14,7 @@ from convodrive.generators.replay import ReplayGenerator
 from convodrive.motion.bvh import write_bvh
 from convodrive.motion.channels import ConversationState
 from convodrive.motion.clip import MotionClip
+from convodrive.motion.livelink import write_livelink_csv
 from convodrive.motion.npz import save_clip
 from convodrive.plugins import GENERATOR_GROUP, load_plugin
 from convodrive.plumbing.errors import InputFileError, UserError
@@ -102,8 +103,57 @@ def test_missing_option_and_bad_files(tmp_path: Path) -> None:
     with pytest.raises(InputFileError, match="no such file"):
         ReplayGenerator({"motion": str(tmp_path / "absent.npz")})
     (tmp_path / "notes.txt").write_text("hello")
-    with pytest.raises(InputFileError, match="not a motion file"):
+    with pytest.raises(InputFileError, match="unsupported motion format ..txt."):
         ReplayGenerator({"motion": str(tmp_path / "notes.txt")})
     empty = save_clip(MotionClip.neutral(0), tmp_path / "empty.npz")
     with pytest.raises(InputFileError, match="no frames"):
         ReplayGenerator({"motion": str(empty)})
+
+
+def test_a_clip_longer_than_the_audio_is_cut_with_a_warning(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    path = write_bvh(ramp_clip(90, 30), tmp_path / "long.bvh")  # 3 s of motion, no face
+    gen = ReplayGenerator({"motion": str(path)})
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert warnings == [f"replay: {path}: plays no face (every blendshape channel is 0)"]
+    frames = list(gen.stream(audio(1.0).chunks()))
+    assert len(frames) == 30
+    cut = f"{path}: the clip lasts 3.00 s but the audio 1.00 s: its last 2.00 s are not played"
+    assert [r.getMessage() for r in caplog.records][-1] == f"replay: {cut}"
+    assert gen.report()["warnings"] == [f"{path}: plays no face (every blendshape channel is 0)", cut]
+
+
+def test_a_clip_shorter_than_the_audio_holds_with_a_warning(tmp_path: Path) -> None:
+    gen = ReplayGenerator({"motion": saved(tmp_path, ramp_clip(15, 30))})
+    list(gen.stream(audio(1.0).chunks()))
+    assert gen.report()["warnings"] == [
+        f"{tmp_path / 'm.npz'}: the clip lasts 0.50 s but the audio 1.00 s: its last frame is held for 0.50 s"
+    ]
+    exact = ReplayGenerator({"motion": saved(tmp_path, ramp_clip(30, 30))})
+    list(exact.stream(audio(1.0).chunks()))
+    assert exact.report()["warnings"] == []
+
+
+def test_take_k_plays_file_k(tmp_path: Path) -> None:
+    slow, fast = ramp_clip(30, 30), ramp_clip(30, 30)
+    fast.pose[:, 15, 1] *= 2
+    a, b = save_clip(slow, tmp_path / "a.npz"), write_bvh(fast, tmp_path / "b.bvh")
+    gen = ReplayGenerator({"motion": [str(a), str(b)]})
+    takes = list(gen.stream_takes(audio(1.0).chunks(), seeds=[0, 1, 2]))
+    assert len(takes) == 30 and all(len(t) == 3 for t in takes)
+    np.testing.assert_allclose([t[0].pose[15, 1] for t in takes], slow.pose[:, 15, 1], atol=1e-5)
+    np.testing.assert_allclose([t[1].pose[15, 1] for t in takes], fast.pose[:, 15, 1], atol=1e-5)
+    np.testing.assert_allclose([t[2].pose[15, 1] for t in takes], slow.pose[:, 15, 1], atol=1e-5)
+
+
+def test_reads_live_link_csv(tmp_path: Path) -> None:
+    clip = ramp_clip(30, 30)
+    path = write_livelink_csv(clip, tmp_path / "take.csv")
+    frames = list(ReplayGenerator({"motion": str(path)}).stream(audio(1.0).chunks()))
+    np.testing.assert_allclose([f.face[17] for f in frames], clip.face[:, 17], atol=1e-6)
+
+
+def test_bad_motion_option_is_one_line() -> None:
+    with pytest.raises(UserError, match="generator replay: option 'motion' must be"):
+        ReplayGenerator({"motion": 5})
+    with pytest.raises(UserError, match="unknown option 'moton' \\(did you mean 'motion'\\?\\)"):
+        ReplayGenerator({"moton": "a.npz"})

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import bvh
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -32,7 +31,10 @@ def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(np.swapaxes(a, -1, -2) @ b).magnitude()
 
 
+@pytest.mark.bvh_reader
 def test_export_read_by_third_party_parser(tmp_path: Path) -> None:
+    import bvh
+
     clip = random_clip()
     path = write_bvh(clip, tmp_path / "clip.bvh")
     parsed = bvh.Bvh(path.read_text())

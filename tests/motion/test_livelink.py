@@ -1,4 +1,4 @@
-"""Live Link Face CSV export: header as the app writes it, one row per frame, head and eye angles."""
+"""Live Link Face CSV: header as the app writes it, one row per frame, head and eye angles; and read back."""
 
 from __future__ import annotations
 
@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from convodrive.motion.channels import ARKIT_NAMES, BLENDSHAPE_INDEX
+from convodrive.motion.channels import ARKIT_NAMES, BLENDSHAPE_INDEX, JAW_OPEN_RAD
 from convodrive.motion.clip import MotionClip
-from convodrive.motion.livelink import timecode, write_livelink_csv
+from convodrive.motion.livelink import HEADER, LIVELINK_BLENDSHAPES, read_livelink_csv, timecode, write_livelink_csv
 from convodrive.motion.skeleton import JOINT_INDEX
+from convodrive.plumbing.errors import InputFileError
 
 ROTATIONS = [
     "HeadYaw",
@@ -90,3 +91,75 @@ def test_long_clip_rows_follow_their_frames(tmp_path: Path) -> None:
 )
 def test_timecode(seconds: float, expected: str) -> None:
     assert timecode(seconds, 30) == expected
+
+
+def test_reading_back_gives_the_face_head_eyes_and_jaw(tmp_path: Path) -> None:
+    clip = MotionClip.neutral(50)
+    t = np.arange(50) / 30
+    clip.face[:, BLENDSHAPE_INDEX["jawOpen"]] = 0.5 + 0.5 * np.sin(5 * t)
+    clip.face[:, BLENDSHAPE_INDEX["mouthLeft"]] = 0.3
+    clip.pose[:, JOINT_INDEX["head"]] = Rotation.from_euler(
+        "YXZ", np.stack([0.3 * t, 0.1 * t, -0.05 * t], 1)
+    ).as_rotvec()
+    clip.pose[:, JOINT_INDEX["left_eye_smplhf"]] = rotvec("y", 0.2)
+    back = read_livelink_csv(write_livelink_csv(clip, tmp_path / "face.csv"))
+    assert back.num_frames == 50 and back.fps == 30
+    np.testing.assert_allclose(back.face, clip.face, atol=1e-6)
+    for joint in ("head", "left_eye_smplhf", "right_eye_smplhf"):
+        np.testing.assert_allclose(back.pose[:, JOINT_INDEX[joint]], clip.pose[:, JOINT_INDEX[joint]], atol=1e-5)
+    # The jaw joint follows jawOpen, as every generator writes it.
+    np.testing.assert_allclose(
+        back.pose[:, JOINT_INDEX["jaw"], 0], clip.face[:, BLENDSHAPE_INDEX["jawOpen"]] * JAW_OPEN_RAD, atol=1e-6
+    )
+    assert not back.translation.any() and not back.vad.any()
+
+
+@pytest.mark.parametrize("fps", [24, 25, 30, 50, 60])
+def test_the_rate_comes_from_the_timecodes(tmp_path: Path, fps: int) -> None:
+    clip = MotionClip.neutral(int(2.5 * fps), fps=fps)
+    clip.face[:, 0] = np.arange(clip.num_frames) / clip.num_frames
+    back = read_livelink_csv(write_livelink_csv(clip, tmp_path / "face.csv"))
+    assert back.fps == fps and back.num_frames == clip.num_frames
+    np.testing.assert_allclose(back.face[:, 0], clip.face[:, 0], atol=1e-6)
+
+
+def _write_rows(path: Path, timecodes: list[str], jaw: list[float]) -> Path:
+    lines = [",".join(HEADER)]
+    for tc, j in zip(timecodes, jaw):
+        values = [0.0] * 61
+        values[LIVELINK_BLENDSHAPES.index("jawOpen")] = j
+        lines.append(f"{tc},61," + ",".join(str(v) for v in values))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_missing_rows_hold_the_previous_one(tmp_path: Path) -> None:
+    # The app drops frames now and then: rows 3 and 4 (of 30 fps) are missing.
+    codes = [f"00:00:05:{f:02d}.000" for f in (0, 1, 2, 5, 6)] + [f"00:00:06:{f:02d}.000" for f in range(30)]
+    back = read_livelink_csv(_write_rows(tmp_path / "t.csv", codes, [0.1, 0.2, 0.3, 0.6, 0.7] + [0.5] * 30))
+    assert back.fps == 30 and back.num_frames == 60
+    np.testing.assert_allclose(back.face[:7, BLENDSHAPE_INDEX["jawOpen"]], [0.1, 0.2, 0.3, 0.3, 0.3, 0.6, 0.7])
+
+
+@pytest.mark.parametrize(
+    "codes, needle",
+    [
+        (["00:00:01:05.000", "00:00:01:04.000"], "line 3: timecode goes backwards"),
+        (["00:00:01:05.000", "00:05:01:06.000"], "line 3: timecode jumps"),
+        (["00:00:01:05.000", "soon"], "line 3: timecode 'soon' is not HH:MM:SS:FF.mmm"),
+    ],
+)
+def test_bad_timecodes_are_one_line(tmp_path: Path, codes: list[str], needle: str) -> None:
+    path = _write_rows(tmp_path / "t.csv", codes, [0.0] * len(codes))
+    with pytest.raises(InputFileError, match=needle):
+        read_livelink_csv(path)
+
+
+def test_bad_values_are_one_line(tmp_path: Path) -> None:
+    path = _write_rows(tmp_path / "t.csv", ["00:00:00:00.000"], [0.0])
+    path.write_text(path.read_text().replace(",0.0", ",nan", 1))
+    with pytest.raises(InputFileError, match="line 2: holds NaN"):
+        read_livelink_csv(path)
+    path.write_text(path.read_text().replace(",nan", ",x", 1))
+    with pytest.raises(InputFileError, match="line 2: a value is missing or not a number"):
+        read_livelink_csv(path)

@@ -61,6 +61,9 @@ def _audio_seconds(path: Path) -> float:
     return sf.info(str(path)).duration
 
 
+@pytest.mark.gl
+@pytest.mark.ffmpeg
+@pytest.mark.espeak
 def test_backend_films_takes_with_audio(tmp_path, speech):
     from convodrive.audio.source import motion_frames_for
     from convodrive.backends.render import RenderBackend
@@ -91,6 +94,9 @@ def test_backend_films_takes_with_audio(tmp_path, speech):
     assert not list(tmp_path.glob(".*"))  # no temporary files left behind
 
 
+@pytest.mark.gl
+@pytest.mark.ffmpeg
+@pytest.mark.espeak
 def test_cli_renders_npz_and_bvh_side_by_side(tmp_path, speech):
     from convodrive.motion.bvh import write_bvh
 
@@ -133,8 +139,9 @@ def test_cli_renders_npz_and_bvh_side_by_side(tmp_path, speech):
     [
         (["missing.npz"], "missing.npz: no such file"),
         (["clip.txt"], "unsupported motion format '.txt'"),
-        (["{clip}", "--resolution", "512by512"], "expected WIDTHxHEIGHT"),
-        (["{clip}", "--resolution", "511x512"], "must be even"),
+        # The resolution is the render backend's option: checked once the backend loads.
+        pytest.param(["{clip}", "--resolution", "512by512"], "expected WIDTHxHEIGHT", marks=pytest.mark.gl),
+        pytest.param(["{clip}", "--resolution", "511x512"], "must be even", marks=pytest.mark.gl),
         (["{clip}", "--audio", "nope.wav"], "nope.wav: no such file"),
         (["{clip}", "--out", "video.avi"], "must be an .mp4"),
     ],
@@ -166,6 +173,7 @@ def test_backend_options_are_checked():
     assert RenderBackend({}).default_profile is None and RenderBackend.realtime is False
 
 
+@pytest.mark.gl
 def test_no_headless_gl_is_one_line(tmp_path):
     """A platform that cannot work (here a bogus one) ends in one line, not a traceback."""
     from tests.conftest import run_cli
@@ -177,6 +185,7 @@ def test_no_headless_gl_is_one_line(tmp_path):
     assert len(lines) == 1 and "no headless OpenGL works" in lines[0]
 
 
+@pytest.mark.gl
 def test_contact_sheet_keeps_frames_evenly_spread():
     from convodrive.backends.render import ContactSheet
 
@@ -188,6 +197,8 @@ def test_contact_sheet_keeps_frames_evenly_spread():
     assert len(set(np.diff(kept))) == 1  # one stride
 
 
+@pytest.mark.gl
+@pytest.mark.ffmpeg
 def test_window_without_display_degrades_to_file_only(tmp_path, monkeypatch):
     from convodrive.backends.render import RenderBackend
 
@@ -231,6 +242,9 @@ def x_display():
         proc.wait(timeout=10)
 
 
+@pytest.mark.gl
+@pytest.mark.ffmpeg
+@pytest.mark.xvfb
 def test_live_window_shows_the_frames_on_a_display(tmp_path, monkeypatch, x_display):
     from convodrive.backends.render import RenderBackend
 
@@ -249,12 +263,3 @@ def test_live_window_shows_the_frames_on_a_display(tmp_path, monkeypatch, x_disp
     assert len(shown) > 4, "the window shows the rendered avatar, not a blank image"
     assert backend.health()["status"] == "ok" and "note" not in backend.health()
     assert (tmp_path / "avatar.mp4").is_file(), "the video is still written beside the window"
-
-
-def test_clips_at_other_rates_are_resampled_and_held():
-    from convodrive.cli.render import frame_indices
-
-    clip = MotionClip.neutral(60, fps=60.0)
-    idx = frame_indices(clip, 40)
-    assert list(idx[:4]) == [0, 2, 4, 6] and idx[29] == 58
-    assert (idx[30:] == 59).all()  # past its end, a clip holds its last frame

@@ -10,11 +10,15 @@ import numpy as np
 import pytest
 
 from convodrive.backends.base import Session
-from convodrive.backends.dynamixel import DynamixelBackend
-from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, start_emulated_head
-from convodrive.motion.targets import TargetFrame
-from convodrive.plumbing.errors import UserError
-from convodrive.retargeting import load_profile
+from tests.conftest import require
+
+pytestmark = require("hardware")
+
+from convodrive.backends.dynamixel import DynamixelBackend  # noqa: E402
+from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, start_emulated_head  # noqa: E402
+from convodrive.motion.targets import TargetFrame  # noqa: E402
+from convodrive.plumbing.errors import UserError  # noqa: E402
+from convodrive.retargeting import load_profile  # noqa: E402
 
 PROFILE = load_profile("servo_head")
 SPEC = PROFILE.spec
@@ -129,7 +133,9 @@ def _expect_fault(report: dict, name: str) -> None:
 
 
 @pytest.mark.parametrize("fault", ["drop", "corrupt", "overload", "overheating", "input_voltage", "vanish", "unplug"])
-def test_each_fault_degrades_completes_and_ends_torque_off(fault: str, tmp_path: Path) -> None:
+def test_each_fault_degrades_completes_and_ends_torque_off(
+    fault: str, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     link = str(tmp_path / "ttyDXL")
     frames = trajectory(30)
     with DynamixelEmulator(range(1, 8), "xl330", link=link) as emu:
@@ -153,6 +159,7 @@ def test_each_fault_degrades_completes_and_ends_torque_off(fault: str, tmp_path:
         drive(backend, frames, inject)
         time.sleep(0.15)  # let one more health read see the fault
         health = backend.health()
+        closing_at = time.time()
         backend.close()  # must not raise
         report = backend.report()
         torque = {i: emu.servo(i).torque for i in range(1, 8)}
@@ -163,6 +170,10 @@ def test_each_fault_degrades_completes_and_ends_torque_off(fault: str, tmp_path:
         "unplug": "port_lost",
     }.get(fault, f"{fault}:eye_pan")
     _expect_fault(report, expected)
+    kind, _, joint = expected.partition(":")
+    logged = [r for r in caplog.records if r.levelname == "WARNING" and f"dynamixel: {kind}" in r.getMessage()]
+    assert logged and joint in logged[0].getMessage(), "the fault is logged"
+    assert logged[0].created < closing_at, "as it happens, not only in the report at the end"
     assert health["status"] in ("ok", "degraded")
     assert report["frames"] == len(frames)
     assert report["torque_off"] and not any(torque.values())
