@@ -1,9 +1,25 @@
-"""Shared fixtures: the CLI as a user runs it, and short synthetic conversations."""
+"""Shared fixtures (the CLI as a user runs it, short synthetic conversations) and the markers for
+what a test needs beyond the core install.
+
+A core-only install (``pip install -e . pytest pytest-timeout hypothesis``) runs its share of the
+suite. A test that needs an extra or a system tool carries a marker named in ``NEEDS`` below (and
+registered in pyproject.toml: mujoco, gymnasium, gl, ffmpeg, hardware, pocketsphinx, espeak, xvfb,
+bvh_reader, import_linter, build_tools, onnxruntime, torch); where the machine lacks it the test is
+skipped with the reason and what installs it. CI installs everything and sets
+``CONVODRIVE_TESTS_NEED_ALL=1``, which turns such a skip into a failure.
+
+Mark a test (``@pytest.mark.gl``) or a module (``pytestmark = [pytest.mark.gl, ...]``) and import
+the optional module inside the test, so that collection works without it; a module that needs it
+at the top says ``pytestmark = require("hardware")`` above those imports.
+"""
 
 from __future__ import annotations
 
 import ctypes
+import functools
+import importlib.util
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -13,6 +29,57 @@ import pytest
 import soundfile as sf
 
 REPO = Path(__file__).resolve().parents[1]
+
+NEEDS: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
+    # marker: (Python modules, programs on PATH, what installs them)
+    "mujoco": (("mujoco", "mink"), (), "pip install 'convodrive[sim]'"),
+    "gymnasium": (("gymnasium",), (), "pip install 'convodrive[sim]'"),
+    "gl": (("pyrender", "OpenGL", "trimesh"), (), "scripts/setup.sh, or pip install 'convodrive[render]'"),
+    "ffmpeg": (("imageio_ffmpeg",), ("ffmpeg", "ffprobe"), "pip install 'convodrive[render]' and apt install ffmpeg"),
+    "hardware": (("dynamixel_sdk", "serial"), (), "pip install 'convodrive[hardware]'"),
+    "pocketsphinx": (("pocketsphinx",), (), "pip install 'convodrive[speech]'"),
+    "espeak": ((), ("espeak-ng",), "apt install espeak-ng"),
+    "xvfb": ((), ("Xvfb",), "apt install xvfb (scripts/setup.sh --dev)"),
+    "bvh_reader": (("bvh",), (), "pip install 'convodrive[dev]'"),
+    "import_linter": (("importlinter",), (), "pip install 'convodrive[dev]'"),
+    "build_tools": (("wheel",), (), "pip install -U setuptools wheel, as scripts/setup.sh does"),
+    "onnxruntime": (("onnxruntime",), (), "pip install 'convodrive[models]'"),
+    "torch": (("torch",), (), "pip install 'convodrive[models]'"),
+}
+NEED_ALL = os.environ.get("CONVODRIVE_TESTS_NEED_ALL") == "1"
+
+
+@functools.cache
+def missing(marker: str) -> tuple[str, ...]:
+    """What the machine lacks of a marker's needs (empty when the test can run)."""
+    modules, programs, _ = NEEDS[marker]
+    absent = tuple(m for m in modules if importlib.util.find_spec(m) is None)
+    return absent + tuple(p for p in programs if shutil.which(p) is None)
+
+
+def require(marker: str) -> pytest.MarkDecorator:
+    """For a module whose every test needs ``marker``: ``pytestmark = require("hardware")``, above
+    the imports that need it. Without them the module is skipped with the reason (a collection
+    error under ``CONVODRIVE_TESTS_NEED_ALL=1``); with them it returns the marker."""
+    absent = missing(marker)
+    if absent:
+        reason = f"needs {', '.join(absent)} ({NEEDS[marker][2]})"
+        if NEED_ALL:
+            raise ImportError(f"{reason}, and CONVODRIVE_TESTS_NEED_ALL=1 says everything is installed")
+        pytest.skip(reason, allow_module_level=True)
+    return getattr(pytest.mark, marker)
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    for marker in NEEDS:
+        if item.get_closest_marker(marker) is None:
+            continue
+        absent = missing(marker)
+        if absent:
+            reason = f"needs {', '.join(absent)} ({NEEDS[marker][2]})"
+            if NEED_ALL:
+                pytest.fail(f"{reason}, and CONVODRIVE_TESTS_NEED_ALL=1 says everything is installed")
+            pytest.skip(reason)
 
 
 def run_cli(

@@ -12,7 +12,7 @@ import pytest
 from tests.conftest import REPO
 
 LINT_IMPORTS = Path(sys.executable).with_name("lint-imports")
-pytestmark = pytest.mark.skipif(not LINT_IMPORTS.exists(), reason="needs import-linter (the dev extra)")
+pytestmark = pytest.mark.import_linter
 
 
 def _layout(dest: Path) -> Path:

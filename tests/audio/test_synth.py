@@ -19,6 +19,7 @@ def rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else 0.0
 
 
+@pytest.mark.espeak
 def test_turns_land_on_their_channels_at_their_times(tmp_path: Path) -> None:
     turns = [
         Turn(SELF, "one two three four", voice="en-us", pitch=30),

@@ -7,6 +7,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+import pytest
 import soundfile as sf
 
 from convodrive.audio.synth import speak
@@ -17,6 +18,8 @@ from convodrive.motion.clip import MotionClip
 from convodrive.motion.skeleton import JOINT_INDEX as J
 from convodrive.motion.targets import TargetFrame
 from convodrive.retargeting import Retargeter, load_profile
+
+pytestmark = [pytest.mark.mujoco, pytest.mark.ffmpeg]
 
 
 def speech(path: Path) -> float:
@@ -79,6 +82,7 @@ def ffprobe(path: Path) -> list[dict]:
     return json.loads(out)["streams"]
 
 
+@pytest.mark.espeak
 def test_humanoid_video_and_tracking(tmp_path):
     audio = tmp_path / "speech.wav"
     duration = speech(audio)
@@ -134,6 +138,7 @@ def test_servo_twin_tracks_and_refuses_values_outside_limits(tmp_path):
     assert np.all(backend.data.ctrl[backend.act] <= profile.spec.upper + 1e-9)
 
 
+@pytest.mark.gymnasium
 def test_config_only_gymnasium_humanoid_bends_its_elbows(tmp_path):
     """Third-party MJCF, driven by a YAML file alone: elbows flex when the canonical elbows do."""
     import mujoco
@@ -167,6 +172,7 @@ def test_config_only_gymnasium_humanoid_bends_its_elbows(tmp_path):
     assert mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "root") == -1  # the free root was welded
 
 
+@pytest.mark.espeak
 def test_drive_cli_with_procedural_motion_meets_the_must_show(tmp_path):
     """`convodrive drive AUDIO --generator procedural --backend mujoco --config convo_humanoid.yaml`."""
     from convodrive.cli.main import main

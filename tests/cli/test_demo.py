@@ -6,8 +6,12 @@ import json
 import subprocess
 from pathlib import Path
 
+import pytest
+
 from convodrive.motion.npz import load_clip
 from tests.conftest import run_cli
+
+pytestmark = [pytest.mark.mujoco, pytest.mark.gl, pytest.mark.ffmpeg, pytest.mark.hardware]
 
 
 def _ffprobe(path: Path) -> dict:

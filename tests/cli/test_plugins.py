@@ -37,6 +37,7 @@ def plugin_site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return target
 
 
+@pytest.mark.build_tools
 def test_installed_plugin_is_listed(plugin_site: Path) -> None:
     out = run_cli("plugins", env={"PYTHONPATH": str(plugin_site)})
     assert out.returncode == 0, out.stderr
@@ -50,6 +51,7 @@ def test_plugin_is_not_listed_when_not_installed() -> None:
     assert out.returncode == 0 and "tiny_nod" not in out.stdout
 
 
+@pytest.mark.build_tools
 def test_installed_plugins_drive_a_run(plugin_site: Path, tone_dialogue: Path, tmp_path: Path) -> None:
     out = run_cli(
         "drive",
@@ -71,6 +73,7 @@ def test_installed_plugins_drive_a_run(plugin_site: Path, tone_dialogue: Path, t
     assert report["backends"]["tiny_log"]["frames_sent"] == 90
 
 
+@pytest.mark.build_tools
 def test_plugin_with_a_missing_dependency_is_named_not_crashed(
     plugin_site: Path, tone_dialogue: Path, tmp_path: Path
 ) -> None:

@@ -9,14 +9,19 @@ import sys
 import time
 from pathlib import Path
 
-import dynamixel_sdk as sdk
 import pytest
-import yaml
 
-from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, start_emulated_head
-from convodrive.cli.main import main
-from convodrive.cli.servo import calibrate, set_joint_limits
-from convodrive.retargeting.profile import resolve_profile_path
+from tests.conftest import require
+
+pytestmark = require("hardware")
+
+import dynamixel_sdk as sdk  # noqa: E402
+import yaml  # noqa: E402
+
+from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, start_emulated_head  # noqa: E402
+from convodrive.cli.main import main  # noqa: E402
+from convodrive.cli.servo import calibrate, set_joint_limits  # noqa: E402
+from convodrive.retargeting.profile import resolve_profile_path  # noqa: E402
 
 
 def test_scan_lists_the_emulated_servos(capsys) -> None:  # type: ignore[no-untyped-def]

@@ -13,6 +13,8 @@ from convodrive.motion.npz import save_clip
 from tests.conftest import run_cli
 from tests.procedural_dialogues import make
 
+pytestmark = [pytest.mark.espeak]
+
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):

@@ -14,6 +14,8 @@ from tests.procedural_dialogues import make, reference, with_bleed
 
 NAMES = ("alternating", "self_monologue", "partner_monologue", "overlap", "story")
 
+pytestmark = [pytest.mark.espeak]
+
 
 @pytest.fixture(scope="module")
 def made(tmp_path_factory):

@@ -12,6 +12,8 @@ from convodrive.plugins import load_plugin
 from convodrive.plumbing.errors import UserError
 from tests.procedural_dialogues import make
 
+pytestmark = [pytest.mark.espeak]
+
 
 @pytest.fixture(scope="module")
 def audio(tmp_path_factory):

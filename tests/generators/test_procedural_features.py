@@ -68,6 +68,7 @@ def test_pitch_rise_is_an_accent_and_loudness_bursts_are_syllables():
     assert np.all(np.diff(nuclei) >= 4)
 
 
+@pytest.mark.espeak
 def test_laughter_is_found_in_ha_ha_not_in_speech():
     laugh = analyse(pad(speak("ha ha ha ha ha ha ha", rate=200, pitch=80) * 0.5)).self_voice["laugh"]
     speech = analyse(
@@ -77,6 +78,8 @@ def test_laughter_is_found_in_ha_ha_not_in_speech():
     assert speech.max() == 0.0
 
 
+@pytest.mark.pocketsphinx
+@pytest.mark.espeak
 def test_phones_give_bilabial_visemes_for_p_and_m():
     closed = 0
     for text in (
@@ -93,6 +96,8 @@ def test_phones_give_bilabial_visemes_for_p_and_m():
     assert phone_viseme("M") == phone_viseme("B") == VISEME_INDEX["PP"] and phone_viseme("+NSN+") == 0
 
 
+@pytest.mark.pocketsphinx
+@pytest.mark.espeak
 def test_analysis_is_the_same_for_any_chunking():
     x = pad(speak("Chunks of any size give the same features.") * 0.5)
     other = np.roll(x, 9000)
@@ -113,6 +118,7 @@ def test_rest_pose_is_a_relaxed_conversational_pose_not_a_t_pose():
     assert np.allclose(pos[J["left_wrist"]] * [-1, 1, 1], pos[J["right_wrist"]], atol=1e-9)  # symmetric
 
 
+@pytest.mark.espeak
 def test_jaw_and_eye_joints_agree_with_their_blendshapes():
     x = pad(speak("Look at me while I am talking to you, please.") * 0.5, 0.5, 2.0)
     reply = speak("Sure, go on.") * 0.5
@@ -135,6 +141,7 @@ def test_jaw_and_eye_joints_agree_with_their_blendshapes():
     assert blink.max() > 0.9 and np.mean(blink > 0.5) < 0.2
 
 
+@pytest.mark.espeak
 def test_smile_on_laughter_and_brows_on_accents():
     gen = ProceduralGenerator({"phones": False})
     laugh = pad(speak("ha ha ha ha ha ha ha", rate=200, pitch=80) * 0.5, 0.5, 1.0)
@@ -152,6 +159,7 @@ def test_smile_on_laughter_and_brows_on_accents():
     assert brow.max() > 0.1 and 1.0 < peak < 1.8
 
 
+@pytest.mark.espeak
 def test_backchannel_nods_at_the_partners_pauses():
     parts, pauses = [np.zeros(SR // 2, np.float32)], []
     for text in (
@@ -184,6 +192,7 @@ def test_closed_form_head_rotation_matches_the_euler_conversion():
     )
 
 
+@pytest.mark.pocketsphinx
 def test_phone_model_is_cut_down_to_the_viseme_phones(tmp_path):
     from convodrive.audio import phones
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from convodrive.backends.servo import dynamixel_packet as dp
 from convodrive.backends.servo.dynamixel_emulator import parse_fault, start_emulated_head
@@ -12,6 +13,8 @@ from convodrive.motion.npz import load_clip
 from convodrive.pipeline import DriveRequest, drive
 from convodrive.retargeting import Retargeter, load_profile
 from convodrive.samples import bundled_dialogue
+
+pytestmark = [pytest.mark.hardware]
 
 
 def test_dialogue_goal_log_matches_the_retargeted_trajectory(tmp_path: Path) -> None:

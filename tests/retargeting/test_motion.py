@@ -112,6 +112,8 @@ def test_velocity_limit_slews_a_step():
     assert values[-1] == pytest.approx(1.0)
 
 
+@pytest.mark.mujoco
+@pytest.mark.gymnasium
 def test_ik_reaches_hand_targets_on_gymnasium_humanoid():
     r = Retargeter(load_profile("gymnasium_humanoid"))
     clip = MotionClip.neutral(10)
@@ -126,6 +128,7 @@ def test_ik_reaches_hand_targets_on_gymnasium_humanoid():
     assert not np.allclose(untouched[-1], r.raw(clip.pose[:1], clip.translation[:1], clip.face[:1])[0], atol=0.1)
 
 
+@pytest.mark.mujoco
 def test_ik_head_task_agrees_with_the_exact_axis_map():
     """IK on the humanoid's neck, aimed at the canonical head's pose, finds the axis map's answer."""
     base = load_profile("convo_humanoid")

@@ -88,6 +88,7 @@ def test_from_dict_and_bare_name_resolve_model():
     assert again.model_path == profile.model_path
 
 
+@pytest.mark.mujoco
 def test_servo_head_profile_and_twin_share_joints_and_limits():
     import mujoco
 
@@ -106,6 +107,7 @@ def test_servo_head_profile_and_twin_share_joints_and_limits():
     assert {model.actuator(a).name for a in range(model.nu)} == set(profile.spec.names)
 
 
+@pytest.mark.mujoco
 def test_humanoid_profile_drives_every_actuated_joint():
     import mujoco
 

@@ -63,6 +63,7 @@ def _mask(shape, boxes) -> np.ndarray:
     return m
 
 
+@pytest.mark.gl
 def test_jaw_open_changes_the_mouth_and_nothing_else(face_renderer):
     r = face_renderer
     closed, opened = r.render(_frame(jawOpen=0.0)), r.render(_frame(jawOpen=1.0))
@@ -73,6 +74,7 @@ def test_jaw_open_changes_the_mouth_and_nothing_else(face_renderer):
     assert not diff[_mask(diff.shape, _eye_boxes(r))].any()
 
 
+@pytest.mark.gl
 def test_blink_changes_the_eyes_and_nothing_else(face_renderer):
     r = face_renderer
     open_, shut = r.render(_frame()), r.render(_frame(eyeBlinkLeft=1.0, eyeBlinkRight=1.0))
@@ -110,6 +112,7 @@ def _pupil_x(image: np.ndarray, box) -> float:
     return float(dark[:, 1].mean()) + box[1].start
 
 
+@pytest.mark.gl
 def test_gaze_moves_the_pupils_from_joints_and_from_channels(face_renderer):
     r = face_renderer
     boxes = _pupil_boxes(r)
@@ -126,6 +129,7 @@ def test_gaze_moves_the_pupils_from_joints_and_from_channels(face_renderer):
 
 
 @pytest.mark.parametrize("channel", ["mouthFunnel", "mouthPucker", "mouthSmileLeft", "mouthSmileRight", "mouthClose"])
+@pytest.mark.gl
 def test_lip_shapes_move_the_lips(face_renderer, channel):
     r = face_renderer
     base = _frame(jawOpen=0.6) if channel == "mouthClose" else _frame()
@@ -136,6 +140,7 @@ def test_lip_shapes_move_the_lips(face_renderer, channel):
     assert diff[~mouth].sum() == 0
 
 
+@pytest.mark.gl
 def test_smile_is_one_sided(face_renderer):
     r = face_renderer
     diff = _changed(r.render(_frame()), r.render(_frame(mouthSmileLeft=1.0)))
@@ -145,6 +150,7 @@ def test_smile_is_one_sided(face_renderer):
     assert (cols > mx).sum() > 3 * max((cols < mx).sum(), 1)
 
 
+@pytest.mark.gl
 def test_brows_raise(face_renderer):
     r = face_renderer
     diff = _changed(r.render(_frame()), r.render(_frame(browInnerUp=1.0)))

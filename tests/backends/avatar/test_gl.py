@@ -10,6 +10,8 @@ import sys
 import numpy as np
 import pytest
 
+pytestmark = [pytest.mark.gl]
+
 RENDER_ONE = """
 import sys, numpy as np
 from convodrive.backends.avatar.render_scene import AvatarRenderer

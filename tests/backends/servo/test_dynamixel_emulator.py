@@ -6,13 +6,18 @@ import os
 import termios
 import time
 
-import dynamixel_sdk as sdk
 import pytest
-import serial
 
-from convodrive.backends.servo import dynamixel_packet as dp
-from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, parse_fault
-from convodrive.plumbing.errors import UserError
+from tests.conftest import require
+
+pytestmark = require("hardware")
+
+import dynamixel_sdk as sdk  # noqa: E402
+import serial  # noqa: E402
+
+from convodrive.backends.servo import dynamixel_packet as dp  # noqa: E402
+from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, parse_fault  # noqa: E402
+from convodrive.plumbing.errors import UserError  # noqa: E402
 
 
 @pytest.fixture()

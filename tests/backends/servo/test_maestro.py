@@ -8,15 +8,20 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import serial
 
-from convodrive.backends.base import Session
-from convodrive.backends.maestro import MaestroBackend
-from convodrive.backends.servo import maestro_protocol as mp
-from convodrive.backends.servo.maestro_emulator import MaestroEmulator, start_emulated_maestro
-from convodrive.motion.targets import TargetFrame
-from convodrive.plumbing.errors import UserError
-from convodrive.retargeting import load_profile
+from tests.conftest import require
+
+pytestmark = require("hardware")
+
+import serial  # noqa: E402
+
+from convodrive.backends.base import Session  # noqa: E402
+from convodrive.backends.maestro import MaestroBackend  # noqa: E402
+from convodrive.backends.servo import maestro_protocol as mp  # noqa: E402
+from convodrive.backends.servo.maestro_emulator import MaestroEmulator, start_emulated_maestro  # noqa: E402
+from convodrive.motion.targets import TargetFrame  # noqa: E402
+from convodrive.plumbing.errors import UserError  # noqa: E402
+from convodrive.retargeting import load_profile  # noqa: E402
 
 PROFILE = load_profile("servo_head")
 SPEC = PROFILE.spec
