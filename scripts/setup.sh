@@ -29,15 +29,29 @@ fi
 
 python=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$python" -m venv .venv
-pip=(.venv/bin/python -m pip --disable-pip-version-check -q)
-"${pip[@]}" install -U pip setuptools wheel 2>&1 | grep -v '^WARNING: Location' || true
+
+# pip runs quietly: its output is shown only when it fails. Hidden on success: this machine's
+# notes about index locations, and setuptools' notice that the install is editable (ours is on
+# purpose: retargeting/ and backends/ install under the convodrive namespace through a finder).
+pip_log=$(mktemp)
+trap 'rm -f "$pip_log"' EXIT
+pip_quiet() {
+    if ! PYTHONWARNINGS="ignore:Editable installation" \
+        .venv/bin/python -m pip --disable-pip-version-check -q "$@" >"$pip_log" 2>&1; then
+        grep -v '^WARNING: Location' "$pip_log" >&2 || true
+        echo "setup: pip install failed (above)" >&2
+        exit 1
+    fi
+}
+echo "setup: installing Python packages into .venv"
+pip_quiet install -U pip setuptools wheel
 extras="speech,sim,render,hardware"
 [ "$dev" = 1 ] && extras="$extras,dev"
-"${pip[@]}" install -e ".[$extras]" 2>&1 | grep -v '^WARNING: Location' || true
+pip_quiet install -e ".[$extras]"
 # pyrender 0.1.45 pins PyOpenGL==3.1.0, which breaks MuJoCo's EGL/OSMesa bindings. The render
 # extra installs pyrender's real dependencies with PyOpenGL>=3.1.7; pyrender itself goes in
 # without its pin. See README, "Headless GL and the PyOpenGL pin".
-"${pip[@]}" install --no-deps "pyrender==0.1.45" 2>&1 | grep -v '^WARNING: Location' || true
+pip_quiet install --no-deps "pyrender==0.1.45"
 .venv/bin/python -c "import convodrive, OpenGL; assert tuple(map(int, OpenGL.__version__.split('.')[:3])) >= (3, 1, 7), OpenGL.__version__" \
     || { echo "setup: PyOpenGL is older than 3.1.7; MuJoCo's headless GL would break" >&2; exit 1; }
 echo "setup: ready (.venv)"
