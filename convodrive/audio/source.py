@@ -277,6 +277,8 @@ class _Columns:
 
     def __exit__(self, *exc: object) -> None:
         self._reader.close()
+
+
 class AudioDecodeError(InputFileError):
     """The audio stopped decoding part-way (corrupt or truncated data): the run ends there."""
 

@@ -41,8 +41,10 @@ def run(args: argparse.Namespace) -> int:
     from convodrive.cli.drive import exit_code, print_result
     from convodrive.motion.load import load_motion
     from convodrive.motion.resample import frames_covering
-    from convodrive.pipeline import DriveRequest, drive
+    from convodrive.pipeline import MAX_SAMPLES, DriveRequest, drive
 
+    if len(args.motion) > MAX_SAMPLES:
+        raise UserError(f"render: at most {MAX_SAMPLES} clips side by side, got {len(args.motion)}")
     out: Path = args.out if args.out is not None else args.motion[0].with_suffix(".mp4")
     if out.suffix.lower() != ".mp4":
         raise UserError(f"--out {out}: the video must be an .mp4 file")

@@ -30,7 +30,8 @@ from convodrive.plumbing.errors import UserError
 
 log = logging.getLogger(__name__)
 
-MAX_FILES = 64
+MAX_FILES = 16
+"""As many files as a run has takes at most (``--samples`` 1 to 16)."""
 
 
 @dataclasses.dataclass(frozen=True)

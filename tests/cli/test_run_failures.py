@@ -15,7 +15,9 @@ import numpy as np
 import pytest
 import soundfile as sf
 
+from convodrive.backends.base import Backend, Session
 from convodrive.motion.npz import load_clip
+from convodrive.motion.targets import TargetFrame, TargetSpec
 from convodrive.pipeline import DriveRequest, drive
 from convodrive.plumbing.errors import UserError
 from tests.conftest import run_cli
@@ -53,29 +55,30 @@ def test_out_not_writable_is_refused_before_the_run(tone_dialogue: Path) -> None
     _one_line(run_cli("drive", str(tone_dialogue), "--out", "/sys/convodrive-out"), "--out /sys/convodrive-out: cannot")
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root writes through folder permissions")
 def test_out_without_write_permission(tone_dialogue: Path, tmp_path: Path) -> None:
     locked = tmp_path / "locked"
     locked.mkdir()
     locked.chmod(0o555)
     try:
-        _one_line(run_cli("drive", str(tone_dialogue), "--out", str(locked)), "cannot write there (permission denied)")
+        out = run_cli("drive", str(tone_dialogue), "--out", str(locked), as_user=True)
+        _one_line(out, f"--out {locked}: cannot write there (permission denied)")
+        out = run_cli("drive", str(tone_dialogue), "--out", str(locked / "sub"), as_user=True)
+        _one_line(out, f"--out {locked / 'sub'}: cannot create {locked / 'sub'} (permission denied)")
     finally:
         locked.chmod(0o755)
+    assert list(locked.iterdir()) == []
 
 
-class _RefusesToOpen:
+class _RefusesToOpen(Backend):
     """A backend whose configuration turns out wrong only when it opens (a bad port, a bad model)."""
 
     name = "refuses"
-    realtime = False
-    default_profile = None
 
-    def __init__(self, options: object = None) -> None:
-        pass
-
-    def open(self, spec: object, session: object) -> None:
+    def open(self, spec: TargetSpec, session: Session) -> None:
         raise UserError("backend refuses: its model file is not a model")
+
+    def send(self, frame: TargetFrame) -> None:
+        raise AssertionError("never opened, never sent")
 
 
 def test_a_run_that_fails_after_making_its_folder_leaves_none(
