@@ -32,10 +32,14 @@ REPO = Path(__file__).resolve().parents[1]
 
 NEEDS: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
     # marker: (Python modules, programs on PATH, what installs them)
-    "mujoco": (("mujoco", "mink"), (), "pip install 'convodrive[sim]'"),
+    "mujoco": (("mujoco", "mink", "imageio_ffmpeg"), (), "pip install 'convodrive[sim]'"),
     "gymnasium": (("gymnasium",), (), "pip install 'convodrive[sim]'"),
-    "gl": (("pyrender", "OpenGL", "trimesh"), (), "scripts/setup.sh, or pip install 'convodrive[render]'"),
-    "ffmpeg": (("imageio_ffmpeg",), ("ffmpeg", "ffprobe"), "pip install 'convodrive[render]' and apt install ffmpeg"),
+    "gl": (
+        ("pyrender", "OpenGL", "trimesh", "PIL", "imageio_ffmpeg"),
+        (),
+        "scripts/setup.sh, or pip install 'convodrive[render]'",
+    ),
+    "ffmpeg": ((), ("ffmpeg", "ffprobe"), "apt install ffmpeg"),
     "hardware": (("dynamixel_sdk", "serial"), (), "pip install 'convodrive[hardware]'"),
     "pocketsphinx": (("pocketsphinx",), (), "pip install 'convodrive[speech]'"),
     "espeak": ((), ("espeak-ng",), "apt install espeak-ng"),

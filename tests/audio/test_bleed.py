@@ -11,6 +11,8 @@ from convodrive.audio.source import DyadicAudio
 from convodrive.audio.synth import add_bleed
 from tests.procedural_dialogues import make, reference
 
+pytestmark = [pytest.mark.espeak]
+
 
 @pytest.fixture(scope="module")
 def dialogues(tmp_path_factory):

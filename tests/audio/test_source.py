@@ -186,6 +186,7 @@ def _burst_start(voice: np.ndarray, reference: np.ndarray) -> int:
         ("aac.m4a", lambda wav, dst: _encode(wav, dst, "-c:a", "aac", "-b:a", "128k")),
     ],
 )
+@pytest.mark.ffmpeg
 def test_compressed_formats_keep_length_channels_and_timing(tmp_path: Path, name: str, encode) -> None:
     """MP3 through libsndfile, M4A through ffmpeg: the right channel on the right side, aligned to
     the sample where the bursts were (no encoder delay left in), and the file's exact length."""
@@ -204,6 +205,7 @@ def test_compressed_formats_keep_length_channels_and_timing(tmp_path: Path, name
     assert np.abs(audio.self_voice[2 * burst :]).max() < 0.05  # the partner's burst stays on its channel
 
 
+@pytest.mark.ffmpeg
 def test_raw_aac_streams_to_its_end(tmp_path: Path) -> None:
     """ADTS AAC states no length: the source reads until the decoder stops."""
     wav = tmp_path / "src.wav"
@@ -215,6 +217,7 @@ def test_raw_aac_streams_to_its_end(tmp_path: Path) -> None:
     assert abs(sum(len(c) for c in chunks) - 2 * ANALYSIS_RATE) < 0.1 * ANALYSIS_RATE
 
 
+@pytest.mark.ffmpeg
 def test_long_m4a_in_constant_memory(tmp_path: Path) -> None:
     """10 minutes of AAC decode through ffmpeg's pipe without holding the audio."""
     wav = tmp_path / "long.wav"
@@ -256,6 +259,7 @@ def _m4a_video_only(p: Path) -> None:
         (_m4a_video_only, "not a readable audio file"),
     ],
 )
+@pytest.mark.ffmpeg
 def test_bad_m4a_files_are_one_line_errors(tmp_path: Path, make, problem: str) -> None:
     path = tmp_path / "bad.m4a"
     make(path)
@@ -265,6 +269,7 @@ def test_bad_m4a_files_are_one_line_errors(tmp_path: Path, make, problem: str) -
     assert message.startswith(str(path)) and problem in message and "\n" not in message
 
 
+@pytest.mark.ffmpeg
 def test_m4a_without_ffmpeg_is_one_line(tmp_path: Path, monkeypatch) -> None:
     wav = tmp_path / "src.wav"
     sf.write(wav, tones(44100, 1.0), 44100)
@@ -275,6 +280,7 @@ def test_m4a_without_ffmpeg_is_one_line(tmp_path: Path, monkeypatch) -> None:
     assert str(err.value).startswith(str(tmp_path / "a.m4a"))
 
 
+@pytest.mark.ffmpeg
 def test_damaged_m4a_stops_with_one_line_not_a_short_clip(tmp_path: Path) -> None:
     """AAC decoding skips what it cannot read and exits 0; the source compares what came out with
     the length the container states, so a damaged file is an error, not a silently shorter run."""

@@ -47,18 +47,31 @@ def test_samples_is_bounded(capsys, tone_dialogue: Path, tmp_path: Path) -> None
 @pytest.mark.parametrize(
     "args, needles",
     [
-        (
+        pytest.param(
             ["--backend", "mujoco", "-B", "mujoco.width=abc"],
             ["backend mujoco: option 'width' must be a whole number, got 'abc'"],
+            marks=pytest.mark.mujoco,
         ),
-        (["--backend", "mujoco", "-B", "mujoco.width=99999"], ["option 'width' must be between 16 and 4096"]),
+        pytest.param(
+            ["--backend", "mujoco", "-B", "mujoco.width=99999"],
+            ["option 'width' must be between 16 and 4096"],
+            marks=pytest.mark.mujoco,
+        ),
         (["--backend", "record", "-B", "render.camera=face"], ["backend 'render' is not in this run", "record"]),
         (["-G", "expresiveness=2"], ["generator procedural: unknown option 'expresiveness'", "'expressiveness'"]),
         (["-G", "expressiveness=lots"], ["option 'expressiveness' must be a number, got 'lots'"]),
         (["-G", "vad_off_db=-10"], ["generator procedural: vad_off_db (-10) must not exceed vad_on_db (-40)"]),
         (["--motion", "x.npz"], ["--motion is for the replay generator"]),
-        (["--backend", "dynamixel", "-B", "dynamixel.raed_rate=5"], ["unknown option 'raed_rate'", "'read_rate'"]),
-        (["--backend", "dynamixel", "-B", "dynamixel.watchdog_s=-1"], ["option 'watchdog_s' must be between 0.05"]),
+        pytest.param(
+            ["--backend", "dynamixel", "-B", "dynamixel.raed_rate=5"],
+            ["unknown option 'raed_rate'", "'read_rate'"],
+            marks=pytest.mark.hardware,
+        ),
+        pytest.param(
+            ["--backend", "dynamixel", "-B", "dynamixel.watchdog_s=-1"],
+            ["option 'watchdog_s' must be between 0.05"],
+            marks=pytest.mark.hardware,
+        ),
         (["--backend", "mujco"], ["unknown backend 'mujco' (did you mean 'mujoco'?)"]),
     ],
 )
@@ -70,21 +83,33 @@ def test_command_line_option_mistakes(capsys, tone_dialogue: Path, tmp_path: Pat
 @pytest.mark.parametrize(
     "text, backend, needles",
     [
-        (
+        pytest.param(
             "backends: {dynamixel: {watchdog_s: soon}}",
             "dynamixel",
             ["option 'watchdog_s' must be a number, got 'soon'"],
+            marks=pytest.mark.hardware,
         ),
-        ("backends: {dynamixel: {watchdog_s: -1}}", "dynamixel", ["option 'watchdog_s' must be between 0.05 and 10"]),
-        (
+        pytest.param(
+            "backends: {dynamixel: {watchdog_s: -1}}",
+            "dynamixel",
+            ["option 'watchdog_s' must be between 0.05 and 10"],
+            marks=pytest.mark.hardware,
+        ),
+        pytest.param(
             "backends: {dynamixel: {raed_rate: 5}}",
             "dynamixel",
             ["unknown option 'raed_rate' (did you mean 'read_rate'?)"],
+            marks=pytest.mark.hardware,
         ),
         ("backends: {record: 5}", "record", ["backend record: options must be a mapping of names to values, got 5"]),
         ("backends: {mujco: {width: 320}}", "record", ["backends: unknown backend 'mujco' (did you mean 'mujoco'?)"]),
         # a section for a backend the run does not use is still checked: the file is wrong
-        ("backends: {mujoco: {widht: 320}}", "record", ["backend mujoco: unknown option 'widht'", "'width'"]),
+        pytest.param(
+            "backends: {mujoco: {widht: 320}}",
+            "record",
+            ["backend mujoco: unknown option 'widht'", "'width'"],
+            marks=pytest.mark.mujoco,
+        ),
         ("generator: {procedural: {expressiveness: 9}}", "record", ["generator procedural: option 'expressiveness'"]),
         ("backends: [record]", "record", ["'backends' must be a mapping of names to options"]),
         ("generator: [unclosed\n", "record", ["not valid YAML at line 2: expected ',' or ']'"]),
@@ -99,6 +124,8 @@ def test_config_file_mistakes_name_the_file(
     assert line.startswith(f"convodrive: error: {path}"), line
 
 
+@pytest.mark.hardware
+@pytest.mark.mujoco
 def test_a_profiles_backend_options_name_the_profile(capsys, tone_dialogue: Path, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """Defect 12: backend option errors did not name the file they came from."""
     profile = tmp_path / "my_head.yaml"
@@ -147,6 +174,7 @@ def test_unreadable_audio_says_permission_denied(tmp_path: Path, tone_dialogue: 
     assert out.stderr.strip() == f"convodrive: error: {locked}: cannot read (permission denied)"
 
 
+@pytest.mark.mujoco
 def test_profile_names_resolve_the_same_everywhere(tone_dialogue: Path, tmp_path: Path) -> None:
     """Defect 19: `drive --config servo_head` said "no such config file" while the servo tools
     accepted the name; from any folder, a bundled profile is named, a file is a path."""
@@ -167,6 +195,7 @@ def test_profile_names_resolve_the_same_everywhere(tone_dialogue: Path, tmp_path
     assert "unknown robot profile 'servo_haed'" in missing.stderr and "servo_head" in missing.stderr
 
 
+@pytest.mark.hardware
 def test_plugins_name_lists_options(capsys) -> None:  # type: ignore[no-untyped-def]
     assert main(["plugins", "dynamixel"]) == 0
     out = capsys.readouterr().out
@@ -180,6 +209,7 @@ def test_plugins_name_lists_options(capsys) -> None:  # type: ignore[no-untyped-
     one_line_error(capsys, ["plugins", "mujco"], "unknown plugin 'mujco' (did you mean 'mujoco'?)")
 
 
+@pytest.mark.mujoco
 def test_a_profile_cannot_choose_another_profile(capsys, tone_dialogue: Path, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     profile = tmp_path / "head.yaml"
     text = resolve_profile_path("servo_head").read_text()

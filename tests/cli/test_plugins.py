@@ -93,6 +93,7 @@ def test_plugin_with_a_missing_dependency_is_named_not_crashed(
     assert "convodrive_no_such_module" in out.stderr and "convodrive[imaginary]" in out.stderr
 
 
+@pytest.mark.build_tools
 def test_a_third_party_plugin_declares_options_the_same_way(
     plugin_site: Path, tone_dialogue: Path, tmp_path: Path
 ) -> None:

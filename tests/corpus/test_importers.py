@@ -55,6 +55,7 @@ def assert_same_rotations(a: np.ndarray, b: np.ndarray) -> None:
 
 
 # -- BEAT2 ---------------------------------------------------------------------------------------
+@pytest.mark.espeak
 def test_beat2_imports_joints_by_name_masks_the_face_and_keeps_the_splits(tmp_path: Path) -> None:
     src = tmp_path / "beat_english_v2.0.0"
     truth = sources.write_beat2(src)
@@ -80,6 +81,7 @@ def test_beat2_imports_joints_by_name_masks_the_face_and_keeps_the_splits(tmp_pa
     assert np.all(stats.count[representation.PARTS["hands"]] > 0)
 
 
+@pytest.mark.espeak
 def test_beat2_audio_and_motion_of_different_lengths_is_one_line(tmp_path: Path) -> None:
     src = tmp_path / "beat"
     truth = sources.write_beat2(src, clips=2)
@@ -89,6 +91,7 @@ def test_beat2_audio_and_motion_of_different_lengths_is_one_line(tmp_path: Path)
     fails("beat2", src, tmp_path / "out", f"{truth['names'][1]}.wav", "audio lasts 6.00 s", "has 210 frames")
 
 
+@pytest.mark.espeak
 def test_beat2_truncated_npz_and_missing_audio_are_one_line(tmp_path: Path) -> None:
     src = tmp_path / "beat"
     truth = sources.write_beat2(src, clips=2)
@@ -103,6 +106,7 @@ def test_beat2_truncated_npz_and_missing_audio_are_one_line(tmp_path: Path) -> N
 
 
 # -- SHOW ----------------------------------------------------------------------------------------
+@pytest.mark.espeak
 def test_show_imports_through_the_restricted_unpickler_and_masks_hands_without_mano(tmp_path: Path) -> None:
     src = tmp_path / "ExpressiveWholeBodyDatasetReleaseV1.0"
     truth = sources.write_show(src)
@@ -132,6 +136,7 @@ def test_show_imports_through_the_restricted_unpickler_and_masks_hands_without_m
 
 
 @pytest.mark.parametrize("kind", ["npz", "json"])
+@pytest.mark.espeak
 def test_show_hands_from_mano_components(tmp_path: Path, kind: str) -> None:
     src = tmp_path / "show"
     truth = sources.write_show(src, with_torch=False)
@@ -150,6 +155,7 @@ def test_show_hands_from_mano_components(tmp_path: Path, kind: str) -> None:
         assert_same_rotations(got, expected.reshape(-1, 15, 3))
 
 
+@pytest.mark.espeak
 def test_show_pickles_that_ask_for_code_are_refused_and_never_run(tmp_path: Path) -> None:
     src = tmp_path / "show"
     sources.write_show(src, with_torch=False)
@@ -167,8 +173,8 @@ def test_show_pickles_that_ask_for_code_are_refused_and_never_run(tmp_path: Path
     fails("show", src, tmp_path / "out", victim.name, "pickle")
 
 
+@pytest.mark.torch
 def test_show_tensors_are_dropped_without_importing_torch(tmp_path: Path) -> None:
-    pytest.importorskip("torch")
     src = tmp_path / "show"
     sources.write_show(src)
     pkl = next(src.rglob("*.pkl"))
@@ -182,6 +188,7 @@ def test_show_tensors_are_dropped_without_importing_torch(tmp_path: Path) -> Non
     assert out.stdout.strip().endswith("['losses_to_log.loss_total', 'losses_to_log.loss_hand'] False")
 
 
+@pytest.mark.espeak
 def test_show_bad_mano_file_is_one_line(tmp_path: Path) -> None:
     src = tmp_path / "show"
     sources.write_show(src, with_torch=False)
@@ -191,6 +198,7 @@ def test_show_bad_mano_file_is_one_line(tmp_path: Path) -> None:
 
 
 # -- Seamless Interaction ------------------------------------------------------------------------
+@pytest.mark.espeak
 def test_seamless_pairs_dyads_and_maps_smplh_by_name(tmp_path: Path) -> None:
     src = tmp_path / "seamless"
     truth = sources.write_seamless(src)
@@ -217,6 +225,7 @@ def test_seamless_pairs_dyads_and_maps_smplh_by_name(tmp_path: Path) -> None:
     assert np.abs(corpus.audio(truth["people"][2]).other_voice).max() == 0  # no partner: silent
 
 
+@pytest.mark.espeak
 def test_seamless_npz_without_pose_keys_is_one_line_naming_what_it_has(tmp_path: Path) -> None:
     src = tmp_path / "seamless"
     truth = sources.write_seamless(src)

@@ -188,6 +188,9 @@ def _all_options(cls: type[PluginOptions]) -> list[tuple[str, typing.Any, dict]]
     return out
 
 
+@pytest.mark.mujoco
+@pytest.mark.gl
+@pytest.mark.hardware
 def test_every_builtin_plugin_declares_its_options() -> None:
     plugins = dict(_builtin_plugins())
     assert {"procedural", "replay", "record", "render", "mujoco", "dynamixel", "maestro"} <= set(plugins)

@@ -156,6 +156,8 @@ def test_unlimited_velocity_is_still_allowed(tmp_path):
     assert load_profile(path).spec.max_velocity[1] == np.inf
 
 
+@pytest.mark.mujoco
+@pytest.mark.gymnasium
 def test_ik_joint_listed_twice_is_refused():
     data = load_profile("gymnasium_humanoid")
     assert data.ik is not None

@@ -40,6 +40,7 @@ def _silent_stretches(segments: list[list[float]], end: float) -> list[tuple[flo
     return out + [(t, end)]
 
 
+@pytest.mark.espeak
 def test_dialogues_have_realistic_turn_taking() -> None:
     plan = plan_corpus(1.0, seed=4)[0]
     dialogue = synthesize((plan.self_voice, plan.partner_voice), 150.0, np.random.default_rng(11))
@@ -66,6 +67,7 @@ def test_dialogues_have_realistic_turn_taking() -> None:
             assert np.sqrt(np.mean(quiet**2)) < 0.003
 
 
+@pytest.mark.espeak
 def test_speaker_styles_move_differently() -> None:
     plan = plan_corpus(1.0, seed=2)[0]
     d = synthesize((plan.self_voice, plan.partner_voice), 30.0, np.random.default_rng(3))
@@ -80,6 +82,7 @@ def test_speaker_styles_move_differently() -> None:
     assert energy["animated"][1] > 1.5 * energy["calm"][1]  # gestures on versus off
 
 
+@pytest.mark.espeak
 def test_make_is_deterministic_whatever_the_jobs(tmp_path: Path) -> None:
     a = make_corpus(0.012, tmp_path / "a", seed=9, jobs=1)
     result = run_cli("corpus", "make", "--hours", "0.012", "--out", str(tmp_path / "b"), "--seed", "9", "--jobs", "2")
