@@ -1,6 +1,6 @@
 """Dialogues for the procedural generator's tests, spoken by espeak-ng: several voices, rates and
 turn patterns (alternating, self monologue, partner monologue, overlapping speech, a long
-listening stretch). ``make`` writes each one's WAV and the JSON sidecar of its turns (the
+listening stretch, laughter). ``make`` writes each one's WAV and the JSON sidecar of its turns (the
 reference speech segments), and ``with_bleed`` gives the same dialogue as microphones in one room
 would record it."""
 
@@ -66,6 +66,20 @@ DIALOGUES: dict[str, list[Turn]] = {
             gap=0.4,
         ),
         Turn(SELF, "That is wonderful news.", "en-us", 165, gap=0.5),
+    ],
+    "laughter": [
+        Turn(SELF, "Did the robot behave at the party?", "en-us", 165),
+        Turn(
+            PARTNER,
+            "Not at all. It followed the cat around all evening and kept saying hello to it.",
+            "en-us+f3",
+            170,
+            gap=0.5,
+        ),
+        Turn(PARTNER, "ha ha ha ha ha ha", "en-us+f3", 165, gap=0.3),
+        Turn(PARTNER, "Then it fell asleep under the table.", "en-us+f3", 170, gap=0.4),
+        Turn(SELF, "ha ha ha ha ha ha", "en-us", 165, gap=0.5),
+        Turn(SELF, "That sounds like our robot.", "en-us", 165, gap=0.3),
     ],
 }
 

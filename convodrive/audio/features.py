@@ -7,11 +7,12 @@ output never depends on how the audio was cut into chunks:
 1. *raw* features of frame m (``raw_frames``): frame RMS, and F0 and spectral shape from a
    ``WINDOW``-sample window centred on the frame; they need audio up to ``centre(m) + WINDOW/2``,
    less than 1.5 frames past the frame's start.
-2. *tracked* features of frame f (``VoiceTracker``): voice activity with hysteresis, the smoothed
+2. *tracked* features of frame f (``VoiceTracker``): voice activity with hysteresis, whether the
+   frame itself sounds (above the off threshold, with no hangover: pauses show), the smoothed
    envelope, pitch accents, syllable nuclei and onsets, laughter-like bursts. Peaks are decided
    with ``TRACK_LOOKAHEAD`` (2) raw frames of look-ahead, so frame f is final once raw frame f+2 is.
 3. Together: frame f's features need audio up to ``(f + 3.5) / 30`` s, within the 3 frames
-   (100 ms) of look-ahead the procedural generator declares.
+   (100 ms) of look-ahead of the audio analysis.
 """
 
 from __future__ import annotations
@@ -232,6 +233,7 @@ TRACK_FIELDS = (
     "low_frac",
     "hiss_frac",
     "bleed",
+    "sounding",
 )
 
 
@@ -302,6 +304,7 @@ class VoiceTracker:
         f1, low = r["f1_frac"].tolist(), r["low_frac"].tolist()
         # Scalar work per frame: plain Python lists and floats here, numpy arrays at the end.
         o_vad, o_voiced, o_env, o_st, o_laugh = [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n
+        o_sounding = [False] * n
         out["bleed"] = bleed[idx].astype(float)
         for j, i in enumerate(idx.tolist()):
             f = start + j
@@ -324,6 +327,7 @@ class VoiceTracker:
                 self._vad = True
                 self._below = 0
             o_vad[j] = self._vad
+            o_sounding[j] = own >= off_db
             voiced = self._vad and periodic[i] and own > off_db
             o_voiced[j] = voiced
             # Loudness in [0, 1] relative to this voice's running level (automatic gain): the level
@@ -373,6 +377,7 @@ class VoiceTracker:
             o_laugh[j] = self._laughter()
         for name, values in (
             ("vad", o_vad),
+            ("sounding", o_sounding),
             ("voiced", o_voiced),
             ("env", o_env),
             ("pitch_st", o_st),

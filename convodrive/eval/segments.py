@@ -35,15 +35,16 @@ class Segments:
     source: str = ""
 
     def masks(self, num_frames: int, fps: float) -> tuple[np.ndarray, np.ndarray]:
-        """(self, partner) boolean masks of the frames whose centre lies in a segment."""
-        centres = (np.arange(num_frames) + 0.5) / fps
-        return _mask(self.self_speech, centres), _mask(self.partner_speech, centres)
+        """(self, partner) boolean masks of the frames that hold any of a segment: a frame where a
+        voice starts or stops counts as speech, so "silent" frames are wholly silent."""
+        starts = np.arange(num_frames) / fps
+        return _mask(self.self_speech, starts, 1.0 / fps), _mask(self.partner_speech, starts, 1.0 / fps)
 
 
-def _mask(intervals: tuple[tuple[float, float], ...], centres: np.ndarray) -> np.ndarray:
-    out = np.zeros(len(centres), bool)
+def _mask(intervals: tuple[tuple[float, float], ...], starts: np.ndarray, length: float) -> np.ndarray:
+    out = np.zeros(len(starts), bool)
     for start, end in intervals:
-        out |= (centres >= start) & (centres < end)
+        out |= (starts < end) & (starts + length > start)
     return out
 
 

@@ -29,7 +29,9 @@ def test_registered_as_plugin():
     cls = load_plugin("convodrive.generators", "procedural")
     assert cls is ProceduralGenerator
     assert cls.name == "procedural" and cls.description
-    assert ProceduralGenerator().lookahead_frames <= 3
+    # The analysis' 100 ms, plus the anticipation that sees pauses and turn starts coming.
+    assert ProceduralGenerator().lookahead_frames == 3 + 9
+    assert ProceduralGenerator({"anticipation": 0}).lookahead_frames == 3
 
 
 def test_same_seed_reproduces_and_seeds_differ(gen, audio):
@@ -51,7 +53,9 @@ def test_samples_are_takes_with_their_own_seeds(gen, audio):
 
 
 @pytest.mark.parametrize("chunk", [160, 1600, 2999])
-def test_streaming_in_chunks_equals_offline(gen, audio, chunk):
+@pytest.mark.parametrize("anticipation", [0.3, 0.0, 0.1])
+def test_streaming_in_chunks_equals_offline(audio, chunk, anticipation):
+    gen = ProceduralGenerator({"anticipation": anticipation})
     offline = gen.generate(audio, seed=5)[0]
     frames = list(gen.stream(audio.chunks(chunk), seed=5))
     assert len(frames) == offline.num_frames
@@ -62,8 +66,10 @@ def test_streaming_in_chunks_equals_offline(gen, audio, chunk):
 
 
 @pytest.mark.parametrize("k", [86, 94, 129])
-def test_frame_k_ignores_audio_after_its_lookahead(gen, audio, k):
+@pytest.mark.parametrize("anticipation", [0.3, 0.0])
+def test_frame_k_ignores_audio_after_its_lookahead(audio, k, anticipation):
     """Replace everything after (k + lookahead + 1) / 30 s with other sound: frames <= k stay."""
+    gen = ProceduralGenerator({"anticipation": anticipation})
     cut = int((k + gen.lookahead_frames + 1) * 16000 / 30)
     rng = np.random.default_rng(0)
     changed = DyadicAudio(audio.self_voice.copy(), audio.other_voice.copy())
@@ -73,7 +79,8 @@ def test_frame_k_ignores_audio_after_its_lookahead(gen, audio, k):
     b = gen.generate(changed, seed=1)[0]
     assert np.array_equal(a.pose[: k + 1], b.pose[: k + 1])
     assert np.array_equal(a.face[: k + 1], b.face[: k + 1])
-    assert not np.array_equal(a.face[k + 1 : k + 12], b.face[k + 1 : k + 12])  # the change is visible later
+    later = slice(k + 1, k + gen.lookahead_frames + 12)
+    assert not np.array_equal(a.face[later], b.face[later])  # the change is visible later
 
 
 def test_expressiveness_scales_motion(audio):

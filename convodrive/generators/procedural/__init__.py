@@ -1,9 +1,13 @@
 """The default generator: conversational motion from dyadic audio by rules, with no model weights.
 
 Audio analysis (``convodrive.audio.analysis``) gives per-frame features of both voices and self's
-visemes with 3 frames (100 ms) of look-ahead; ``FaceSynth`` and ``BodySynth`` turn them into face
-channels and joint rotations. Every stage is chunk-invariant (state carried between batches,
-randomness indexed by absolute frame and seed), so streaming equals offline generation exactly.
+visemes with 3 frames (100 ms) of look-ahead; ``CueTracker`` holds them ``anticipation`` frames
+longer to see the partner's pauses and self's turn starts coming. Per take, ``ListenerSynth``
+decides how self listens (nods, smiles, blinks, glances), ``PostureSynth`` the slow layer (posture
+shifts, arm rest, breathing, the in-breath before a turn), and ``FaceSynth`` and ``BodySynth`` turn
+all of it into face channels and joint rotations. Every stage is chunk-invariant (state carried
+between batches, randomness indexed by absolute frame and seed), so streaming equals offline
+generation exactly.
 """
 
 from __future__ import annotations
@@ -18,8 +22,11 @@ from convodrive.audio.phones import pocketsphinx_available
 from convodrive.audio.source import ANALYSIS_RATE, AudioChunk, DyadicAudio, motion_frames_for
 from convodrive.generators.base import Generator, take_seed
 from convodrive.generators.procedural.body import BodySynth, yxz_axis_angle
+from convodrive.generators.procedural.cues import CueBatch, CueTracker
 from convodrive.generators.procedural.face import FaceSynth
+from convodrive.generators.procedural.listener import ListenerSynth
 from convodrive.generators.procedural.options import ProceduralOptions
+from convodrive.generators.procedural.posture import PostureSynth
 from convodrive.motion.channels import ConversationState
 from convodrive.motion.clip import MotionClip, MotionFrame
 from convodrive.motion.skeleton import JOINT_INDEX as J
@@ -38,8 +45,13 @@ class ProceduralGenerator(Generator):
     options: ProceduralOptions
 
     @property
+    def anticipation_frames(self) -> int:
+        """Frames of features held back to see pauses and turn starts coming (see ``cues``)."""
+        return int(round(self.options.anticipation * 30))
+
+    @property
     def lookahead_frames(self) -> int:
-        return LOOKAHEAD_FRAMES
+        return LOOKAHEAD_FRAMES + self.anticipation_frames
 
     # -- public API ----------------------------------------------------------------------------
     def stream(self, chunks: Iterable[AudioChunk], seed: int = 0) -> Iterator[MotionFrame]:
@@ -49,23 +61,25 @@ class ProceduralGenerator(Generator):
     def stream_takes(self, chunks: Iterable[AudioChunk], seeds: Sequence[int]) -> Iterator[tuple[MotionFrame, ...]]:
         """Analyse the audio once (the analysis ignores the seed) and synthesise every take from it."""
         analyzer = self._analyzer()
+        cues = CueTracker(self.anticipation_frames)
         synths = [_Synth(self.options, s) for s in seeds]
         received = 0
         try:
             for chunk in chunks:
                 received += len(chunk)
-                batch = analyzer.push(chunk.self_voice, chunk.other_voice)
-                if batch is not None:
-                    yield from zip(*(_frames(synth(batch)) for synth in synths))
-            batch = analyzer.finish(motion_frames_for(received / ANALYSIS_RATE))
-            if batch is not None:
-                yield from zip(*(_frames(synth(batch)) for synth in synths))
+                ready = cues.push(analyzer.push(chunk.self_voice, chunk.other_voice))
+                if ready is not None:
+                    yield from zip(*(_frames(synth(ready)) for synth in synths))
+            ready = cues.push(analyzer.finish(motion_frames_for(received / ANALYSIS_RATE)), final=True)
+            if ready is not None:
+                yield from zip(*(_frames(synth(ready)) for synth in synths))
         finally:
             analyzer.close()
 
     def generate(self, audio: DyadicAudio, seed: int = 0, num_samples: int = 1) -> list[MotionClip]:
         """Analyse once, synthesise each take; equal to streaming (the analysis ignores the seed)."""
-        features = self.analyse(audio)
+        features = CueTracker(self.anticipation_frames).push(self.analyse(audio), final=True)
+        assert features is not None
         clips = []
         for i in range(num_samples):
             s = take_seed(seed, i)
@@ -104,13 +118,18 @@ class _Synth:
     """Features to motion for one take; call it on consecutive batches."""
 
     def __init__(self, options: ProceduralOptions, seed: int) -> None:
+        self.listener = ListenerSynth(options, seed)
+        self.posture = PostureSynth(options, seed)
         self.face = FaceSynth(options, seed)
         self.body = BodySynth(options, seed)
 
-    def __call__(self, batch: FrameBatch) -> dict[str, np.ndarray]:
-        s, o = batch.self_voice, batch.other_voice
-        face, jaw, eyes = self.face.step(batch.first, s, o, batch.visemes)
-        pose = self.body.step(batch.first, s, o, eyes)
+    def __call__(self, batch: CueBatch) -> dict[str, np.ndarray]:
+        features = batch.features
+        s, o = features.self_voice, features.other_voice
+        listener = self.listener.step(batch, s, o)
+        posture = self.posture.step(batch.first, s["vad"], o["vad"], batch.cues["breath"])
+        face, jaw, eyes = self.face.step(batch.first, s, o, features.visemes, listener, posture["inhale"])
+        pose = self.body.step(batch.first, s, o, eyes, listener, posture)
         pose[:, J["jaw"], 0] = jaw
         # Yaw about +Y (positive looks to the character's left), then pitch about +X (positive looks down).
         eye_rot = yxz_axis_angle(np.stack([eyes[:, 0], eyes[:, 1], np.zeros(len(eyes))], axis=1))

@@ -1,8 +1,10 @@
-"""Head, torso and arms: nods and tilts on pitch accents, speech-driven sway, slow drift, breathing,
-a still listening posture with backchannel nods at the partner's pauses, and beat gestures.
+"""Head, torso and arms: nods and tilts on pitch accents, speech-driven sway, beat gestures while
+speaking; backchannel nods (``listener``), posture shifts, arm rest, breathing and the in-breath
+before a turn (``posture``) at all times.
 
-Motion scales with self's speaking activity, so the body moves while talking and holds still while
-listening (audio2photoreal's observation). Gestures blend between key poses (``poses``) through a
+Speech-driven motion scales with self's speaking activity, so the body moves most while talking
+(audio2photoreal's observation); while listening it stays attentive rather than frozen: nods,
+slow head drift, posture shifts, breathing. Gestures blend between key poses (``poses``) through a
 critically damped filter, which gives eased, natural transitions without overshoot.
 """
 
@@ -52,7 +54,10 @@ class BodySynth:
         self.nod = bump(0.14)
         self.tilt = bump(0.22)
         self.beat_nod = bump(0.09)
-        self.backchannel = bump(0.2)
+        self.backchannel = bump(0.13)
+        self.backchannel_slow = bump(0.26)
+        self.in_sync = bump(0.1)
+        self.attitude = smoother(0.35, 3)
         self.drift = smoother(_DRIFT_TAU, 5)
         self.follow = smoother(0.35, 2)
         # Both arms start in the rest pose (weight 1 on library pose 0), not eased in from a T-pose.
@@ -68,11 +73,17 @@ class BodySynth:
         self._since_stroke = 99
         self._hold = [-1, -1]
         self._pose = [0, 0]
-        self._other_run = 0
         self._self_quiet = 99
-        self._prev_other = False
 
-    def step(self, first: int, s: dict[str, np.ndarray], o: dict[str, np.ndarray], gaze: np.ndarray) -> np.ndarray:
+    def step(
+        self,
+        first: int,
+        s: dict[str, np.ndarray],
+        o: dict[str, np.ndarray],
+        gaze: np.ndarray,
+        listener: dict[str, np.ndarray],
+        posture: dict[str, np.ndarray],
+    ) -> np.ndarray:
         """(n, 55, 3) axis-angle pose."""
         n = len(gaze)
         e, v = self.o.expressiveness, self.o.variability
@@ -85,18 +96,30 @@ class BodySynth:
 
         accent = s["accent"] * (1.0 + 0.5 * v * (u[:, 0] - 0.5))
         side = np.where(u[:, 1] < 0.5, -1.0, 1.0)
-        events, arm_targets, flicks = self._events(first, u, s, o)
-        nod = self.nod(accent) * 6.0 + self.beat_nod(s["stress"]) * 1.8 + self.backchannel(events) * 4.5
+        arm_targets, flicks = self._events(first, u, s)
+        backchannel = self.backchannel(listener["nod"]) * 5.5 + self.backchannel_slow(listener["nod_slow"]) * 7.0
+        # A listener's head moves a little in time with the speaker's syllables (interactional
+        # synchrony): small dips, far below a nod.
+        backchannel += self.in_sync(o["nucleus"] * listen) * 0.5
+        nod = self.nod(accent) * 6.0 + self.beat_nod(s["stress"]) * 1.8 + backchannel
         tilt = self.tilt(accent * side) * 3.0
         osc = np.sin(2 * np.pi * self.freq[:3] * t[:, None] + self.phase[:3])
         wobble = osc * np.array([2.0, 3.5, 1.6]) * loud[:, None]
         drift = self.drift(self.normal.take(first, n)) * _DRIFT_GAIN
-        drift_amp = (0.35 + 2.2 * act)[:, None] * (0.4 + 0.6 * v)
+        drift_amp = (0.9 + 1.8 * act)[:, None] * (0.4 + 0.6 * v)
         follow = np.degrees(self.follow(gaze)) * 0.3
+        body = posture["posture"]  # lean, side, twist, weight, head yaw, pitch, roll (degrees)
+        inhale = posture["inhale"]
 
         pitch = e * (nod + wobble[:, 0] + drift_amp[:, 0] * drift[:, 0] * 0.8) + 2.0 * listen + follow[:, 1]
         yaw = e * (wobble[:, 1] + drift_amp[:, 0] * drift[:, 1] * 1.5) + follow[:, 0]
         roll = e * (tilt + wobble[:, 2] + drift_amp[:, 0] * drift[:, 2] * 0.7) + 2.5 * listen
+        # Where the head rests moves with the posture and the listener's attitude; breathing in
+        # before a turn lifts the chin.
+        attitude = self.attitude(listener["attitude"]) * e
+        yaw = yaw + body[:, 4] + attitude[:, 0]
+        pitch = pitch + body[:, 5] + attitude[:, 1] - 2.0 * inhale
+        roll = roll + body[:, 6] + attitude[:, 2]
         head = np.radians(np.stack([yaw, pitch, roll], axis=1))
 
         pose = np.broadcast_to(self.rest, (n, NUM_JOINTS, 3)).copy()
@@ -104,53 +127,57 @@ class BodySynth:
         pose[:, J["neck"]] = yxz_axis_angle(0.4 * head)
         pose[:, J["head"]] = yxz_axis_angle(0.6 * head)
 
-        # Breathing lifts the chest and shoulders; the torso sways a little while talking.
-        breath = np.sin(2 * np.pi * self.freq[3] * t + self.phase[3])
-        sway = np.radians(e * drift_amp[:, 0] * drift[:, 3:5].T)  # (2, n)
-        for name, gain in (("spine1", 0.4), ("spine2", 0.35), ("spine3", 0.5)):
-            pose[:, J[name], 0] = np.radians(-gain * breath + 1.5 * listen / 3.0)
+        # Posture: the weight on one hip (pelvis roll, the spine bending back over it), a lean,
+        # a bend and a turn at the lower back; the in-breath before a turn leans in.
+        rad = np.radians
+        pose[:, J["pelvis"], 2] = rad(body[:, 3])
+        pose[:, J["spine1"]] = yxz_axis_angle(
+            rad(np.stack([body[:, 2], body[:, 0] + 0.5 * listen + 1.8 * inhale, body[:, 1] - 0.6 * body[:, 3]], axis=1))
+        )
+        # Breathing lifts the chest and shoulders (a deeper breath before a turn); the torso sways
+        # a little while talking.
+        breath = posture["breath"] + 1.6 * inhale
+        sway = rad(e * drift_amp[:, 0] * drift[:, 3:5].T)  # (2, n)
+        for name, gain in (("spine2", 0.35), ("spine3", 0.5)):
+            pose[:, J[name], 0] = rad(-gain * breath + 0.5 * listen)
         pose[:, J["spine2"], 1] += 0.6 * sway[0]
+        pose[:, J["spine2"], 2] = rad(-0.3 * body[:, 3])
         pose[:, J["spine3"], 2] += 0.4 * sway[1]
-        pose[:, J["left_collar"], 2] = np.radians(0.7 * breath)
-        pose[:, J["right_collar"], 2] = np.radians(-0.7 * breath)
+        pose[:, J["left_collar"], 2] = rad(0.7 * breath)
+        pose[:, J["right_collar"], 2] = rad(-0.7 * breath)
 
+        # The arms rest as the posture has them; gestures leave from and return to that rest.
+        rest_offset = posture["arms"]  # (n, 2, 18, 3)
+        for a, arm in enumerate(("left", "right")):
+            pose[:, ARM_JOINTS[arm]] += rest_offset[:, a]
         if self.o.gestures:
             w = self.arms(arm_targets)
             amount = min(e, 1.5)
             for a, (arm, lib) in enumerate((("left", LIBRARY), ("right", LIBRARY_RIGHT))):
                 blend = np.einsum("np,pjd->njd", w[:, a * _P : (a + 1) * _P], lib)
                 idx = ARM_JOINTS[arm]
-                pose[:, idx] = lib[0] + amount * (blend - lib[0])
+                rest = w[:, a * _P, None, None]  # how much of the arm is at rest
+                pose[:, idx] = lib[0] + amount * (blend - lib[0]) + rest * rest_offset[:, a]
             # The beat itself: a quick downward flick of the forearm on the stressed syllable.
             flick = self.flick(flicks) * np.radians(9.0) * amount
             pose[:, J["left_elbow"], 1] += flick[:, 0]
             pose[:, J["right_elbow"], 1] -= flick[:, 1]
         return pose
 
-    def _events(
-        self, first: int, u: np.ndarray, s: dict[str, np.ndarray], o: dict[str, np.ndarray]
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Backchannel nod impulses, arm key-pose targets (n, 2P) and beat impulses (n, 2)."""
+    def _events(self, first: int, u: np.ndarray, s: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """Arm key-pose targets (n, 2P) and beat impulses (n, 2)."""
         n = len(u)
-        nods = np.zeros(n)
         targets = np.zeros((n, 2 * _P))
         flicks = np.zeros((n, 2))
         v = self.o.variability
         uu = u.tolist()
-        vs, vo = s["vad"].tolist(), o["vad"].tolist()
-        stress, o_accent = s["stress"].tolist(), o["accent"].tolist()
+        vs = s["vad"].tolist()
+        stress = s["stress"].tolist()
         for j in range(n):
             k = first + j
             r = uu[j]
-            sp, ls = vs[j] > 0, vo[j] > 0
+            sp = vs[j] > 0
             self._self_quiet = 0 if sp else self._self_quiet + 1
-            # Backchannel: a nod when the partner pauses after speaking a while, or on their accent.
-            if not sp and self._prev_other and not ls and self._other_run > 30 and r[2] < 0.7:
-                nods[j] = 0.6 + 0.4 * r[3]
-            elif ls and not sp and o_accent[j] > 0 and r[2] < 0.15:
-                nods[j] = 0.35
-            self._other_run = self._other_run + 1 if ls else 0
-            self._prev_other = ls
             # Gestures: a stroke on a stressed syllable, from a key pose, held briefly.
             self._since_stroke += 1
             if sp and stress[j] > 0 and self._since_stroke > 12 + int(10 * v * r[4]):
@@ -165,4 +192,4 @@ class BodySynth:
                 if self._hold[a] < k or self._self_quiet > 6:
                     self._pose[a] = 0
                 targets[j, a * _P + self._pose[a]] = 1.0
-        return nods, targets, flicks
+        return targets, flicks

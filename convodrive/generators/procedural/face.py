@@ -3,8 +3,10 @@
 The mouth is driven by self's loudness (how far it opens) and the viseme (which shape): neighbouring
 visemes blend through a critically damped filter (coarticulation, easing in and out), and both
 fall to zero with self's voice, so the mouth is closed and relaxed whenever self is silent, also
-while the partner talks. Eye rotations and ``eyeLook*`` channels come from one gaze angle pair,
-and the jaw joint from ``jawOpen``, so the skeleton and the blendshapes always agree.
+while the partner talks; only the in-breath before a turn parts the lips a little. While
+listening, the listener's events (``listener``) add smiles, blinks at the partner's pauses and
+glances away. Eye rotations and ``eyeLook*`` channels come from one gaze angle pair, and the jaw
+joint from ``jawOpen``, so the skeleton and the blendshapes always agree.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import numpy as np
 
 from convodrive.audio.visemes import NUM_VISEMES, VISEME_INDEX
 from convodrive.generators.procedural.options import ProceduralOptions
-from convodrive.generators.procedural.signals import Filter, FrameNoise, bump, one_pole, smoother
+from convodrive.generators.procedural.signals import AttackRelease, Filter, FrameNoise, bump, one_pole, smoother
 from convodrive.motion.channels import BLENDSHAPE_INDEX as B
 from convodrive.motion.channels import EYE_LOOK_PITCH_RAD as EYE_PITCH_MAX
 from convodrive.motion.channels import EYE_LOOK_YAW_RAD as EYE_YAW_MAX
@@ -57,9 +59,12 @@ def _tables() -> tuple[np.ndarray, np.ndarray]:
 VISEME_JAW, VISEME_SHAPES = _tables()
 _BLINK = [0.35, 0.85, 1.0, 0.8, 0.5, 0.25, 0.08]
 """Eyelid closure over seven frames: a fast close and a slower reopening (about 230 ms)."""
-BLINKS_PER_MINUTE = {"speaking": 21.0, "listening": 10.0, "silent": 14.0}
-"""People blink more while talking (about 20-26 a minute) than while listening attentively
-(about 10-15), and extra blinks mark the start of their own turn."""
+BLINKS_PER_MINUTE = {"speaking": 21.0, "listening": 13.0, "silent": 14.0}
+"""Spontaneous blinks: people blink more while talking (about 20-26 a minute) than while listening
+attentively (about 10-20, with the listener's blinks at the partner's pauses on top of these),
+and extra blinks mark the start of their own turn."""
+INHALE_JAW = 0.035
+"""How far the in-breath before a turn parts the lips: visibly, yet below a closed mouth's 0.05."""
 _TURN_BLINK = 0.75
 """Chance of a blink just after self starts a turn (within 60-200 ms of the onset)."""
 _END_BLINK = 0.25
@@ -70,7 +75,7 @@ class FaceSynth:
     def __init__(self, options: ProceduralOptions, seed: int) -> None:
         self.o = options
         self.coart = smoother(0.035, NUM_VISEMES)
-        self.jaw = one_pole(0.025)
+        self.jaw = AttackRelease(0.025, 0.012)
         self.blink = Filter(_BLINK, [1.0])
         self.brow = bump(0.16)
         self.smile = one_pole(0.35)
@@ -85,10 +90,17 @@ class FaceSynth:
         self._prev_self = False
         self._gaze = (0.0, 0.0)  # current gaze target (yaw, pitch) radians, 0 = at the partner
         self._avert_until = -1
+        self._listener_glance = False  # the current aversion is a listener's glance (it may last)
         self._next_saccade = 0
 
     def step(
-        self, first: int, s: dict[str, np.ndarray], o: dict[str, np.ndarray], visemes: np.ndarray
+        self,
+        first: int,
+        s: dict[str, np.ndarray],
+        o: dict[str, np.ndarray],
+        visemes: np.ndarray,
+        listener: dict[str, np.ndarray],
+        inhale: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Face channels (n, 52), jaw angle (n,), and gaze (n, 2) yaw/pitch in radians."""
         n = len(visemes)
@@ -96,16 +108,20 @@ class FaceSynth:
         vad_self = s["vad"]
         # Mouth: loudness sets the opening, the coarticulated viseme the shape.
         vis = self.coart(visemes)
-        # A frame whose sound is only the partner's voice in self's microphone moves no lips.
-        drive = np.clip((s["env"] - 0.22) / 0.55, 0.0, 1.0) * vad_self * (1.0 - s["bleed"])
+        # Only frames that carry self's own voice open the mouth: not the quiet edges of a turn
+        # (which the voice activity's hangover still counts), not the partner's voice in self's
+        # microphone.
+        drive = np.clip((s["env"] - 0.22) / 0.55, 0.0, 1.0) * vad_self * s["sounding"] * (1.0 - s["bleed"])
         drive = self.jaw(drive)
         jaw_factor = 0.5 + 0.5 * (vis @ VISEME_JAW)
-        jaw_open = np.clip(0.8 * drive * jaw_factor, 0.0, 1.0)
+        jaw_open = np.clip(0.8 * drive * jaw_factor + INHALE_JAW * inhale * (1.0 - drive), 0.0, 1.0)
         face += np.clip(drive * 1.3, 0.0, 1.0)[:, None] * (vis @ VISEME_SHAPES)
         face[:, B["jawOpen"]] = jaw_open
+        for ch in ("mouthLowerDownLeft", "mouthLowerDownRight"):
+            face[:, B[ch]] += 0.12 * inhale * (1.0 - drive)
 
         r = self.rand.take(first, n)
-        blinks, gaze = self._events(first, r, vad_self, o["vad"])
+        blinks, gaze = self._events(first, r, vad_self, o["vad"], listener)
         lids = np.clip(self.blink(blinks), 0.0, 1.0)
         face[:, B["eyeBlinkLeft"]] = lids
         face[:, B["eyeBlinkRight"]] = lids
@@ -118,8 +134,9 @@ class FaceSynth:
         face[:, B["browOuterUpLeft"]] = 0.8 * brow
         face[:, B["browOuterUpRight"]] = 0.8 * brow
 
-        # Smiles on laughter-like bursts: one's own, and half as much at the partner's.
-        smile = np.clip(self.smile(np.maximum(s["laugh"], 0.5 * o["laugh"])) * min(1.0, 0.5 + 0.5 * e), 0.0, 1.0)
+        # Smiles on one's own laughter-like bursts, and the listener's (at the partner's laughter,
+        # at lively phrases).
+        smile = np.clip(self.smile(np.maximum(s["laugh"], listener["smile"])) * min(1.0, 0.5 + 0.5 * e), 0.0, 1.0)
         for ch, w in (
             ("mouthSmileLeft", 0.7),
             ("mouthSmileRight", 0.7),
@@ -146,7 +163,7 @@ class FaceSynth:
         return np.clip(face, 0.0, 1.0), jaw_open * JAW_MAX_RAD, eyes
 
     def _events(
-        self, first: int, r: np.ndarray, vad_self: np.ndarray, vad_other: np.ndarray
+        self, first: int, r: np.ndarray, vad_self: np.ndarray, vad_other: np.ndarray, listener: dict[str, np.ndarray]
     ) -> tuple[np.ndarray, np.ndarray]:
         """Blink impulses and the gaze target, frame by frame (light scalar work only)."""
         n = len(vad_self)
@@ -155,6 +172,8 @@ class FaceSynth:
         v = self.o.variability
         u = r.tolist()
         vs, vo = vad_self.tolist(), vad_other.tolist()
+        asked_blink, glance = listener["blink"].tolist(), listener["glance_frames"].tolist()
+        glance_yaw, glance_pitch = listener["glance_yaw"].tolist(), listener["glance_pitch"].tolist()
         for j in range(n):
             k = first + j
             sp, ls = vs[j] > 0, vo[j] > 0
@@ -167,7 +186,10 @@ class FaceSynth:
             self._since_blink += 1
             if self_onset and u[j][0] < _TURN_BLINK:
                 self._turn_blink_at = k + 2 + int(4 * u[j][0] / _TURN_BLINK)
-            turn = k == self._turn_blink_at or (self_end and u[j][0] < _END_BLINK)
+            # The listener's blink at a partner's pause comes early rather than on top: only once
+            # half the interval to the next spontaneous blink has passed.
+            early = asked_blink[j] > 0 and self._blink_phase >= 0.5 * self._blink_due
+            turn = k == self._turn_blink_at or (self_end and u[j][0] < _END_BLINK) or early
             if self._since_blink > 9 and (turn or self._blink_phase >= self._blink_due):
                 blinks[j] = 1.0
                 self._since_blink = 0
@@ -183,9 +205,15 @@ class FaceSynth:
                 pitch = math.radians(-5.0 if u[j][3] < 0.4 else 4.0)
                 self._avert_until = k + int(18 + 24 * u[j][4])
                 self._next_saccade = self._avert_until
-            elif k == self._avert_until or (not sp and self._avert_until > k):
+            elif glance[j] > 0 and not sp:  # the listener glances away
+                yaw, pitch = glance_yaw[j], glance_pitch[j]
+                self._avert_until = k + int(glance[j])
+                self._next_saccade = self._avert_until
+                self._listener_glance = True
+            elif k == self._avert_until or (not sp and self._avert_until > k and not self._listener_glance):
                 yaw, pitch = 0.0, 0.0
                 self._avert_until = -1
+                self._listener_glance = False
             elif k >= self._next_saccade:
                 if sp and u[j][3] < 0.12:  # an occasional look away mid-turn
                     yaw = math.radians((6.0 + 6.0 * v * u[j][2]) * (1 if u[j][1] < 0.5 else -1))

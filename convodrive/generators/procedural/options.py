@@ -27,6 +27,14 @@ class ProceduralOptions(PluginOptions):
     vad_off_db: float = option(
         -48.0, low=-100, high=0, help="Loudness (dBFS) below which speech ends (at most vad_on_db)"
     )
+    anticipation: float = option(
+        0.3,
+        low=0,
+        high=1,
+        help="Seconds of look-ahead beyond the audio analysis' 100 ms, to see the partner's pauses (nods) and "
+        "self's turn starts (the in-breath and lean before speaking) coming; the declared look-ahead grows by as "
+        "much. 0 gives the lowest latency (live use)",
+    )
 
     def __post_init__(self) -> None:
         if self.vad_off_db > self.vad_on_db:

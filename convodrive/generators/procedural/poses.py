@@ -89,6 +89,20 @@ LIBRARY: np.ndarray = np.stack([_left_pose(_LEFT[name]) for name in KEY_POSES])
 LIBRARY_RIGHT: np.ndarray = mirror(LIBRARY)
 
 
+def rest_variant(shoulder: tuple[float, float, float], elbow: float, wrist: float, curl: float) -> np.ndarray:
+    """(18, 3) left-arm rest pose moved by ``shoulder`` (X, Z, Y degrees), a deeper or shallower
+    ``elbow`` bend, a ``wrist`` flexion (degrees) and finger curl scaled by ``curl``: the same
+    relaxed rest, held a little differently (mirror it for the right arm)."""
+    rest = _LEFT["rest"]
+    spec = dict(
+        shoulder=tuple(a + b for a, b in zip(rest["shoulder"], shoulder)),
+        elbow=(rest["elbow"][0], rest["elbow"][1], rest["elbow"][2] - elbow),
+        wrist=(rest["wrist"][0], rest["wrist"][1] - wrist, rest["wrist"][2]),
+        curl={f: c * curl for f, c in rest["curl"].items()},
+    )
+    return _left_pose(spec)
+
+
 def rest_pose() -> np.ndarray:
     """(55, 3) the relaxed conversational pose: arms down, elbows bent, hands in front."""
     pose = np.zeros((NUM_JOINTS, 3))

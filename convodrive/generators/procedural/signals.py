@@ -84,3 +84,21 @@ def bump(tau: float, dims: int = 1) -> Filter:
     m = FPS * tau
     peak = m * r ** (m - 1.0)  # h[n] = n r^(n-1) peaks at n = FPS tau
     return Filter([0.0, 1.0 / peak], [1.0, -2.0 * r, r * r], dims)
+
+
+class AttackRelease:
+    """A one-pole follower that rises with time constant ``attack`` and falls with ``release``
+    (seconds): a jaw that opens smoothly and shuts promptly when the voice stops."""
+
+    def __init__(self, attack: float, release: float) -> None:
+        self.up, self.down = alpha(attack), alpha(release)
+        self.y = 0.0
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        out = np.empty(len(x))
+        y, up, down = self.y, self.up, self.down
+        for i, v in enumerate(x.tolist()):
+            y += (up if v > y else down) * (v - y)
+            out[i] = y
+        self.y = y
+        return out
