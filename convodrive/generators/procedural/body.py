@@ -51,15 +51,11 @@ class BodySynth:
         self.speaking = one_pole(0.35)
         self.listening = one_pole(0.6)
         self.loud = one_pole(0.12)
-        self.nod = bump(0.14)
-        self.tilt = bump(0.22)
-        self.beat_nod = bump(0.09)
-        self.backchannel = bump(0.13)
-        self.backchannel_slow = bump(0.26)
-        self.in_sync = bump(0.1)
-        self.attitude = smoother(0.35, 3)
+        self.nod = bump(0.14)  # self's accents and the listener's quick nods
+        self.tilt = bump(0.22, 2)  # self's tilts on accents; the listener's slow nods
+        self.beat_nod = bump(0.09)  # self's stresses; the listener's dips in time with the partner
         self.drift = smoother(_DRIFT_TAU, 5)
-        self.follow = smoother(0.35, 2)
+        self.follow = smoother(0.35, 5)  # the head following the eyes (2), the listener's attitude (3)
         # Both arms start in the rest pose (weight 1 on library pose 0), not eased in from a T-pose.
         self.arms = smoother(0.13, 2 * _P).settle(np.tile(np.eye(_P)[0], 2))
         self.flick = bump(0.09, 2)
@@ -97,17 +93,23 @@ class BodySynth:
         accent = s["accent"] * (1.0 + 0.5 * v * (u[:, 0] - 0.5))
         side = np.where(u[:, 1] < 0.5, -1.0, 1.0)
         arm_targets, flicks = self._events(first, u, s)
-        backchannel = self.backchannel(listener["nod"]) * 5.5 + self.backchannel_slow(listener["nod_slow"]) * 7.0
-        # A listener's head moves a little in time with the speaker's syllables (interactional
-        # synchrony): small dips, far below a nod.
-        backchannel += self.in_sync(o["nucleus"] * listen) * 0.5
-        nod = self.nod(accent) * 6.0 + self.beat_nod(s["stress"]) * 1.8 + backchannel
-        tilt = self.tilt(accent * side) * 3.0
+        # Nods: on self's accents and stresses, and the listener's backchannel nods; a listener's
+        # head also dips a little in time with the speaker's syllables (interactional synchrony),
+        # far below a nod.
+        tilts = self.tilt(np.stack([accent * side, listener["nod_slow"]], axis=1))
+        nod = (
+            self.nod(accent * 6.0 + listener["nod"] * 5.5)
+            + self.beat_nod(s["stress"] * 1.8 + o["nucleus"] * listen * 0.5)
+            + tilts[:, 1] * 7.0
+        )
+        tilt = tilts[:, 0] * 3.0
         osc = np.sin(2 * np.pi * self.freq[:3] * t[:, None] + self.phase[:3])
         wobble = osc * np.array([2.0, 3.5, 1.6]) * loud[:, None]
         drift = self.drift(self.normal.take(first, n)) * _DRIFT_GAIN
         drift_amp = (0.9 + 1.8 * act)[:, None] * (0.4 + 0.6 * v)
-        follow = np.degrees(self.follow(gaze)) * 0.3
+        followed = self.follow(np.concatenate([gaze, np.radians(listener["attitude"])], axis=1))
+        follow = np.degrees(followed[:, :2]) * 0.3
+        attitude = np.degrees(followed[:, 2:]) * e
         body = posture["posture"]  # lean, side, twist, weight, head yaw, pitch, roll (degrees)
         inhale = posture["inhale"]
 
@@ -116,7 +118,6 @@ class BodySynth:
         roll = e * (tilt + wobble[:, 2] + drift_amp[:, 0] * drift[:, 2] * 0.7) + 2.5 * listen
         # Where the head rests moves with the posture and the listener's attitude; breathing in
         # before a turn lifts the chin.
-        attitude = self.attitude(listener["attitude"]) * e
         yaw = yaw + body[:, 4] + attitude[:, 0]
         pitch = pitch + body[:, 5] + attitude[:, 1] - 2.0 * inhale
         roll = roll + body[:, 6] + attitude[:, 2]

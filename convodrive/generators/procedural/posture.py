@@ -3,8 +3,9 @@
 People do not hold one pose through a conversation: every 10 to 30 s they shift their weight,
 lean in or back, turn a little, rest their hands differently; more readily when a turn changes.
 In between, a hand settles somewhere slightly different now and then. Each change draws a new
-target and the body eases into it over a second or two (a critically damped filter: no
-overshoot). Breathing runs all the time at the take's own rate; before self
+target and the body moves there along a minimum-jerk path (the smooth bell-shaped speed of human
+reaching) in 1.5 s, computed in closed form from the change's start, which costs nothing while
+the posture holds. Breathing runs all the time at the take's own rate; before self
 speaks (the ``breath`` cue, which the look-ahead makes possible) the chest fills, the shoulders
 rise a little and the body leans in.
 """
@@ -30,6 +31,29 @@ POSTURE_FIELDS = ("lean", "side", "twist", "weight", "head_yaw", "head_pitch", "
 hip), and where the head rests (yaw, pitch down, roll)."""
 _RANGES = np.array([(-1.0, 3.5), (-2.5, 2.5), (-3.0, 3.0), (-1.8, 1.8), (-4.0, 4.0), (-1.5, 2.5), (-4.0, 4.0)])
 _ARM_DIMS = 2 * 18 * 3
+SHIFT_FRAMES = 45
+"""How long a posture shift or a hand's adjustment takes (1.5 s)."""
+
+
+class _Transitions:
+    """Values that move from where they are to new targets along minimum-jerk paths, each
+    dimension from the frame its latest change began: a pure function of the change events."""
+
+    def __init__(self, start: np.ndarray, target: np.ndarray, frames: int) -> None:
+        self.frames = frames
+        self.source, self.target = start.astype(float), target.astype(float)
+        self.began = np.zeros(len(start), int)
+
+    def at(self, k: np.ndarray) -> np.ndarray:
+        """(len(k), dims) values at frames ``k``."""
+        u = np.clip((k[:, None] - self.began[None, :]) / self.frames, 0.0, 1.0)
+        shape = u * u * u * (10.0 + u * (-15.0 + 6.0 * u))
+        return self.source + (self.target - self.source) * shape
+
+    def move(self, k: int, dims: slice, target: np.ndarray) -> None:
+        """From frame ``k`` on, head for ``target`` in ``dims`` from wherever they are then."""
+        now = self.at(np.array([k]))[0]
+        self.source[dims], self.target[dims], self.began[dims] = now[dims], target, k
 
 
 class PostureSynth:
@@ -47,9 +71,10 @@ class PostureSynth:
         self.breath_phase = rng.uniform(0, 2 * math.pi)
         self._shifts = 0
         self._hand_moves = [0, 0]
+        # Every take starts upright with the library's rest (a robot's neutral pose) and settles
+        # into its own first posture over the first second or two.
         first = np.concatenate([self._draw_body(0), self._draw_arm(0, 0), self._draw_arm(1, 0)])
-        self.smooth = smoother(0.45, len(POSTURE_FIELDS) + _ARM_DIMS).settle(first)
-        self._target = first
+        self.moves = _Transitions(np.zeros_like(first), first, SHIFT_FRAMES)
         self._last_shift = 0
         self._next_shift = self._interval(43, 0, SHIFT_MIN_S, SHIFT_MAX_S)
         self._next_hand = [self._interval(46, side, HAND_MIN_S, HAND_MAX_S) for side in (0, 1)]
@@ -60,8 +85,10 @@ class PostureSynth:
 
     def step(self, first: int, vad_self: np.ndarray, vad_other: np.ndarray, breath_cue: np.ndarray) -> dict:
         n = len(vad_self)
-        targets = np.empty((n, len(self._target)))
         vs, vo = vad_self.tolist(), vad_other.tolist()
+        body = slice(0, len(POSTURE_FIELDS))
+        frames = first + np.arange(n)
+        parts, done = [], 0  # the frames before a change follow the paths as they were
         for j in range(n):
             k = first + j
             sp, ls = vs[j] > 0, vo[j] > 0
@@ -70,10 +97,12 @@ class PostureSynth:
             self._prev_self, self._prev_other = sp, ls
             due = k >= self._next_shift
             ready = k - self._last_shift >= TURN_SHIFT_SHARE * (self._next_shift - self._last_shift)
+            if (due or (turn and ready) or k >= min(self._next_hand)) and j > done:
+                parts.append(self.moves.at(frames[done:j]))
+                done = j
             if due or (turn and ready):
                 self._shifts += 1
-                self._target = self._target.copy()
-                self._target[: len(POSTURE_FIELDS)] = self._draw_body(self._shifts)
+                self.moves.move(k, body, self._draw_body(self._shifts))
                 self._last_shift = k
                 self._next_shift = k + self._interval(43, self._shifts, SHIFT_MIN_S, SHIFT_MAX_S)
                 self._next_hand = [k, k]  # a new posture rests both hands anew
@@ -81,13 +110,12 @@ class PostureSynth:
                 if k >= self._next_hand[side]:
                     self._hand_moves[side] += 1
                     count = self._hand_moves[side]
-                    self._target = self._target.copy()
                     at = len(POSTURE_FIELDS) + side * _ARM_DIMS // 2
-                    self._target[at : at + _ARM_DIMS // 2] = self._draw_arm(side, count)
+                    self.moves.move(k, slice(at, at + _ARM_DIMS // 2), self._draw_arm(side, count))
                     self._next_hand[side] = k + self._interval(46 + side, count, HAND_MIN_S, HAND_MAX_S)
-            targets[j] = self._target
-        smooth = self.smooth(targets)
-        t = (first + np.arange(n)) / 30.0
+        parts.append(self.moves.at(frames[done:]))
+        smooth = np.concatenate(parts)
+        t = frames / 30.0
         return {
             "posture": smooth[:, : len(POSTURE_FIELDS)],
             "arms": smooth[:, len(POSTURE_FIELDS) :].reshape(n, 2, 18, 3),
