@@ -22,6 +22,8 @@ from convodrive.motion.skeleton import global_rotation
 from tests.conftest import REPO
 from tests.procedural_dialogues import make, reference
 
+pytestmark = [pytest.mark.espeak]
+
 TAKES = 6
 LISTENING = ("bundled", "alternating", "partner_monologue", "story", "laughter")
 """Dialogues with at least 6 s of listening in each take."""
