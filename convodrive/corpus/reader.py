@@ -17,6 +17,7 @@ import numpy as np
 import soundfile as sf
 
 from convodrive import FPS
+from convodrive.audio.features import frame_edge
 from convodrive.audio.logmel import MelSpec
 from convodrive.audio.source import ANALYSIS_RATE, AudioSource, DyadicAudio, motion_frames_for
 from convodrive.corpus.manifest import MANIFEST, SPLITS, ConversationInfo, read_manifest
@@ -183,6 +184,21 @@ class Corpus:
         """Both voices of a conversation at 16 kHz (self, partner)."""
         conv = self.conversation(conversation_id)
         return AudioSource(self.folder / conv.audio).read_all()
+
+    def samples(self, conversation_id: str, start: int, length: int) -> np.ndarray:
+        """(n, 2) float32 samples at 16 kHz of motion frames ``start .. start+length-1`` (self,
+        partner), read from the stored WAV without loading the rest: what a front-end that hears
+        raw audio (wav2vec) trains on. Frame k covers samples ``[edge(k), edge(k+1))``."""
+        conv = self.conversation(conversation_id)
+        if not (0 <= start and length >= 0 and start + length <= conv.frames):
+            raise UserError(f"window {start}+{length} is outside conversation {conv.id} ({conv.frames} frames)")
+        first, stop = int(frame_edge(start)), int(frame_edge(start + length))
+        with sf.SoundFile(self.folder / conv.audio) as fh:
+            fh.seek(min(first, fh.frames))
+            data = fh.read(stop - first, dtype="float32", always_2d=True)
+        if len(data) < stop - first:  # the last frame may reach past the audio's end
+            data = np.concatenate([data, np.zeros((stop - first - len(data), 2), np.float32)])
+        return data
 
     def check(self) -> Iterator[ConversationInfo]:
         """Open every shard and check every array of every conversation; yields each one checked."""

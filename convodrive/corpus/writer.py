@@ -130,12 +130,16 @@ class CorpusWriter:
         seed: int = 0,
         spec: MelSpec = DEFAULT_SPEC,
         shard_bytes: int = SHARD_BYTES,
+        licence: str = "that of the source data",
     ) -> None:
+        """``source`` says where the data came from (kind, command, options); ``licence`` the terms
+        of the data, which models trained on it inherit (a model card quotes it)."""
         self.folder = Path(folder)
         if self.folder.exists() and (not self.folder.is_dir() or any(self.folder.iterdir())):
             raise UserError(f"{self.folder}: already exists and is not an empty folder; choose a new one")
         self._created = not self.folder.exists()
         self.source = dict(source)
+        self.licence = licence
         self.seed = seed
         self.spec = spec
         self.shard_bytes = shard_bytes
@@ -228,6 +232,7 @@ class CorpusWriter:
             "sample_rate": ANALYSIS_RATE,
             "audio_features": self.spec.to_dict(),
             "source": self.source,
+            "licence": self.licence,
             "split_seed": self.seed,
             "hours": round(frames / FPS / 3600.0, 6),
             "speakers": sorted({e["speaker"] for e in self._entries}),

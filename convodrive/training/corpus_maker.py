@@ -26,6 +26,7 @@ from convodrive.corpus.writer import CorpusWriter, Prepared, Recording, prepare,
 from convodrive.generators.procedural import ProceduralGenerator
 from convodrive.training.dialogues import TurnTaking, Voice, synthesize
 
+LICENCE = "no third-party data: speech synthesised by espeak-ng, motion by convodrive's procedural generator"
 CONVERSATION_SECONDS = (60.0, 150.0)
 MIN_SECONDS = 8.0
 
@@ -47,7 +48,7 @@ SPEAKERS: tuple[Speaker, ...] = (
     Speaker("reserved", {"expressiveness": 0.35, "variability": 1.0, "gestures": False}, "f4", 55, 160),
     Speaker("restless", {"expressiveness": 1.2, "variability": 2.2, "gestures": True}, "m6", 45, 175),
     Speaker("steady", {"expressiveness": 1.0, "variability": 0.3, "gestures": True}, "m1", 40, 165),
-    Speaker("expansive", {"expressiveness": 2.3, "variability": 1.0, "gestures": True}, "f5", 70, 170),
+    Speaker("expansive", {"expressiveness": 2.0, "variability": 1.0, "gestures": True}, "f5", 70, 170),
 )
 """The speaker styles: motion from expressiveness, variability and gesture habits, each with a voice."""
 
@@ -172,7 +173,7 @@ def make_corpus(
     start = time.perf_counter()
     source = {"kind": "made", "hours": hours, "seed": seed, "takes": takes, "generator": "procedural"}
     frames = 0
-    with CorpusWriter(out, source, seed=seed) as writer, contextlib.ExitStack() as stack:
+    with CorpusWriter(out, source, seed=seed, licence=LICENCE) as writer, contextlib.ExitStack() as stack:
         work = [(p, takes) for p in plans]
         if jobs == 1:
             results: Iterator[Prepared] = map(_work, work)

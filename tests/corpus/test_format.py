@@ -80,6 +80,11 @@ def test_windows_are_slices_and_sampling_is_seeded(small_corpus: tuple[Path, lis
         assert p.pose.shape == (50, 55, 3)
     with pytest.raises(UserError, match="outside conversation"):
         corpus.window(rec.id, 0, 170, 60)
+    # Raw samples of a window, for front-ends that hear audio itself: frame k is samples [k*1600/3, ...).
+    samples = corpus.samples(rec.id, 17, 60)
+    assert samples.shape == (int(77 * 1600 / 3) - int(17 * 1600 / 3), 2)
+    np.testing.assert_allclose(samples[:, 0], rec.audio[int(17 * 1600 / 3) : int(77 * 1600 / 3), 0], atol=1 / 32768)
+    assert corpus.samples(rec.id, 180, 3).shape == (1600, 2)
     with pytest.raises(UserError, match="no train conversation is 100000 frames long"):
         corpus.sample_windows("train", 100_000, 1, np.random.default_rng(0))
 

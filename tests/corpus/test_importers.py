@@ -29,6 +29,7 @@ def imported(kind: str, src: Path, out: Path, *extra: str) -> tuple[Corpus, str]
     assert result.returncode == 0, result.stderr
     corpus = Corpus.open(out)
     assert list(corpus.check()) == corpus.conversations
+    assert "non-commercial" in corpus.manifest["licence"] or kind == "own"
     # Usable for training: windows sample, features encode, statistics fit over what is present.
     window = corpus.sample_windows("train", 150, 4, np.random.default_rng(0))[0]
     assert window.features().shape == (150, representation.FEATURE_DIM)

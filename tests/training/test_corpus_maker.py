@@ -107,6 +107,7 @@ def test_make_is_deterministic_whatever_the_jobs(tmp_path: Path) -> None:
     assert list(ca.check()) == ca.conversations
     manifest = json.loads((tmp_path / "a" / "manifest.json").read_text())
     assert manifest["source"]["kind"] == "made" and manifest["source"]["seed"] == 9
+    assert manifest["licence"].startswith("no third-party data")
 
 
 @pytest.mark.parametrize(

@@ -1,6 +1,7 @@
 """Importers: corpora users bring, written into the one corpus format.
 
-Each importer module has ``find(src, options)`` (every item of the source, checked
+Each importer module has ``LICENCE`` (the source's terms, which trained models inherit),
+``find(src, options)`` (every item of the source, checked
 for the files it needs before anything is written) and ``load(item, options)`` (the item's
 recordings). ``import_corpus`` runs one into a ``CorpusWriter``; a bad file anywhere is one line
 naming it, and the half-made corpus is removed.
@@ -73,7 +74,8 @@ def import_corpus(
     }
     frames = conversations = 0
     ids: set[str] = set()
-    with CorpusWriter(out, source, seed=seed) as writer:
+    licence = str(module.LICENCE)
+    with CorpusWriter(out, source, seed=seed, licence=licence) as writer:
         for i, item in enumerate(items, 1):
             for rec in module.load(item, options):
                 base, n = rec.id, 1

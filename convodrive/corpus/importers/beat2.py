@@ -34,6 +34,8 @@ from convodrive.corpus.manifest import safe_id
 from convodrive.corpus.writer import Recording
 from convodrive.plumbing.errors import InputFileError
 
+LICENCE = "CC BY-NC 4.0 (BEAT2): non-commercial"
+
 _SPLIT_NAMES = {"train": "train", "val": "val", "test": "test", "additional": "train"}
 
 

@@ -32,6 +32,8 @@ from convodrive.corpus.manifest import safe_id
 from convodrive.corpus.writer import Recording
 from convodrive.plumbing.errors import InputFileError
 
+LICENCE = "CC BY-NC 4.0 (Seamless Interaction): non-commercial"
+
 KEYS: dict[str, tuple[str, ...]] = {
     "poses": ("smplh:poses", "poses", "smplh_poses"),
     "global_orient": ("smplh:global_orient", "global_orient", "root_orient"),

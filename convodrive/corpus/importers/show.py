@@ -43,6 +43,8 @@ from convodrive.corpus.manifest import SPLITS, safe_id
 from convodrive.corpus.writer import Recording
 from convodrive.plumbing.errors import InputFileError
 
+LICENCE = "SHOW data set licence (talkshow.is.tue.mpg.de): non-commercial research"
+
 HAND_DIM = 45
 
 
