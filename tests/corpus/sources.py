@@ -19,6 +19,7 @@ from scipy.signal import resample_poly
 
 from convodrive.audio.synth import speak
 from convodrive.motion import rotations
+from convodrive.motion.clip import MotionClip
 from convodrive.motion.skeleton import JOINT_NAMES
 
 SECONDS = 7.0
@@ -185,8 +186,12 @@ def write_seamless(folder: Path, seed: int = 0) -> dict[str, Any]:
                 "movement:expression": rng.normal(size=(frames, 128)).astype(np.float32),
                 "keypoints": rng.normal(size=(frames, 133, 3)).astype(np.float32),
             }
-        else:
-            arrays = {"poses": flat, "trans": np.zeros((frames, 3), np.float32), "fps": np.array(30.0)}
+        else:  # at 60 fps: every frame twice, so the 30 fps import must equal the 30 fps source
+            arrays = {
+                "poses": np.repeat(flat, 2, axis=0),
+                "trans": np.zeros((2 * frames, 3), np.float32),
+                "fps": np.array(60.0),
+            }
         np.savez(folder / f"{stem}.npz", **arrays)
         # The dyad's two microphones: each person speaks in turn (one first, the other after).
         audio = np.zeros(int(SECONDS * 48000), np.float32)
@@ -196,3 +201,44 @@ def write_seamless(folder: Path, seed: int = 0) -> dict[str, Any]:
         sf.write(folder / f"{stem}.wav", audio, 48000, subtype="PCM_16")
         (folder / f"{stem}.json").write_text(json.dumps({"id": stem}))
     return {"people": people, "poses": poses}
+
+
+def random_clip(rng: np.random.Generator, seconds: float, fps: float = 30.0) -> MotionClip:
+    """Smooth random motion of every joint and face channel at ``fps``."""
+    frames = int(round(seconds * fps))
+    face = 0.5 + 0.4 * np.sin(np.linspace(0, 8, frames)[:, None] + rng.uniform(0, 6, 52))
+    return MotionClip(
+        pose=(0.6 * random_axis_angles(rng, frames, 55, 0.4)).astype(np.float32),
+        translation=np.zeros((frames, 3), np.float32),
+        face=face.astype(np.float32),
+        vad=np.zeros((frames, 2), np.float32),
+        state=np.zeros(frames, np.int8),
+        fps=fps,
+    )
+
+
+def write_own(folder: Path, seed: int = 0) -> dict[str, Any]:
+    """What a user records: ``alice/take1`` (stereo WAV + convodrive .npz), ``alice/take2`` (mono WAV
+    + a 60 fps BVH from a suit + a Live Link Face CSV from a phone), ``bob/take3`` (WAV + CSV only)."""
+    from convodrive.motion.bvh import write_bvh
+    from convodrive.motion.livelink import write_livelink_csv
+    from convodrive.motion.npz import save_clip
+
+    rng = np.random.default_rng(seed)
+    for who in ("alice", "bob"):
+        (folder / who).mkdir(parents=True, exist_ok=True)
+    clips = {
+        "take1": random_clip(rng, SECONDS),
+        "take2": random_clip(rng, SECONDS, fps=60.0),
+        "take2_face": random_clip(rng, SECONDS),
+        "take3": random_clip(rng, SECONDS),
+    }
+    save_clip(clips["take1"], folder / "alice" / "take1.npz")
+    write_bvh(clips["take2"], folder / "alice" / "take2.bvh")
+    write_livelink_csv(clips["take2_face"], folder / "alice" / "take2.csv")
+    write_livelink_csv(clips["take3"], folder / "bob" / "take3.csv")
+    partner = np.roll(speech(31), int(3.5 * 16000))
+    sf.write(folder / "alice" / "take1.wav", np.stack([speech(30), partner], 1), 16000, subtype="PCM_16")
+    sf.write(folder / "alice" / "take2.wav", speech(32, rate=44100), 44100, subtype="PCM_16")
+    sf.write(folder / "bob" / "take3.wav", speech(33), 16000, subtype="PCM_16")
+    return clips

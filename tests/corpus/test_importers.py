@@ -232,3 +232,55 @@ def test_seamless_npz_without_pose_keys_is_one_line_naming_what_it_has(tmp_path:
     truth = sources.write_seamless(src)
     np.savez(src / f"{truth['people'][0]}.npz", something=np.zeros((10, 3)))
     fails("seamless", src, tmp_path / "out", "no SMPL-H pose arrays", "it has something")
+
+
+# -- own recordings -------------------------------------------------------------------------------
+def test_own_recordings_npz_bvh_and_livelink_merge_and_mask(tmp_path: Path) -> None:
+    src = tmp_path / "recordings"
+    clips = sources.write_own(src)
+    corpus, stdout = imported("own", src, tmp_path / "corpus")
+    assert corpus.speakers == ["alice", "bob"] and corpus.manifest["licence"] == "that of your own recordings"
+    # A convodrive clip holds everything: nothing masked, values as saved.
+    one = corpus.conversation("take1")
+    assert one.missing_joints == () and one.missing_face == ()
+    got = corpus.takes("take1")[0]
+    np.testing.assert_allclose(got.pose, clips["take1"].pose, atol=1e-6)
+    np.testing.assert_allclose(got.face, clips["take1"].face, atol=1e-6)
+    assert got.vad[15:45, 0].mean() > 0.8 and got.vad[120:150, 1].mean() > 0.8  # partner on channel 1
+    # A 60 fps BVH from a suit and a Live Link take from a phone merge: body from one, face from the other.
+    two = corpus.conversation("take2")
+    assert (
+        two.missing_joints == ()
+        and two.missing_face == ()
+        and two.metadata["motion_files"]
+        == [
+            "take2.bvh",
+            "take2.csv",
+        ]
+    )
+    got = corpus.takes("take2")[0]
+    assert got.num_frames == 210
+    body = [JOINT_INDEX[j] for j in ("left_elbow", "spine2", "right_index2")]
+    assert_close_rotations(got.pose[:, body], clips["take2"].pose[::2][:, body], atol=1e-3)  # 60 -> 30 fps
+    np.testing.assert_allclose(got.face, clips["take2_face"].face, atol=1e-5)
+    # A phone alone: face, head, eyes and jaw; the body is masked.
+    three = corpus.conversation("take3")
+    assert set(JOINT_NAMES) - set(three.missing_joints) == {"head", "left_eye_smplhf", "right_eye_smplhf", "jaw"}
+    assert three.missing_face == ()
+    mask = corpus.window("take3", 0, 0, 30).feature_mask()
+    assert mask[representation.PARTS["arkit"]].all() and not mask[representation.PARTS["upper"]].any()
+
+
+def assert_close_rotations(a: np.ndarray, b: np.ndarray, atol: float) -> None:
+    np.testing.assert_allclose(rotations.axis_angle_to_matrix(a), rotations.axis_angle_to_matrix(b), atol=atol)
+
+
+def test_own_wav_without_motion_and_motion_of_another_length(tmp_path: Path) -> None:
+    src = tmp_path / "recordings"
+    sources.write_own(src)
+    (src / "bob" / "take3.csv").unlink()
+    fails("own", src, tmp_path / "out", "take3.wav", "no motion beside it")
+    sources.write_own(tmp_path / "again")
+    audio, rate = sf.read(tmp_path / "again" / "alice" / "take1.wav")
+    sf.write(tmp_path / "again" / "alice" / "take1.wav", audio[: rate * 5], rate, subtype="PCM_16")
+    fails("own", tmp_path / "again", tmp_path / "out", "take1.wav", "audio lasts 5.00 s", "take1.npz has 210 frames")

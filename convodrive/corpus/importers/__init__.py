@@ -28,6 +28,7 @@ KINDS: dict[str, tuple[str, str]] = {
         "convodrive.corpus.importers.seamless",
         "<interaction>_<participant>.wav and .npz (SMPL-H), paired into dyads",
     ),
+    "own": ("convodrive.corpus.importers.own", "WAV files, each with a .npz, .bvh and/or Live Link .csv of its name"),
 }
 """Kind -> (module, what its source folder holds)."""
 

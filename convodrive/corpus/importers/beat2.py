@@ -82,8 +82,8 @@ def load(item: tuple[Path, Path, str | None], options: ImportOptions) -> list[Re
             rate = float(data["mocap_frame_rate"]) if "mocap_frame_rate" in data.files else float(FPS)
     except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
         raise InputFileError(npz, f"not a readable BEAT2 .npz ({exc.__class__.__name__})") from None
-    if abs(rate - FPS) > 1e-3:
-        raise InputFileError(npz, f"motion at {rate:g} fps; BEAT2's smplxflame_30 is 30 fps")
+    if not 1.0 <= rate <= 1000.0:
+        raise InputFileError(npz, f"mocap_frame_rate {rate:g} is not a frame rate")
     if trans.shape != (len(poses), 3):
         raise InputFileError(npz, f"'trans' has shape {trans.shape}, expected ({len(poses)}, 3)")
     pose, missing = pose_from_joints(poses, SMPLX_JOINTS, npz)
@@ -104,5 +104,6 @@ def load(item: tuple[Path, Path, str | None], options: ImportOptions) -> list[Re
             missing_face=ALL_FACE,
             split=split,
             metadata={"source": "beat2", "face": "FLAME expressions (not ARKit): masked"},
+            fps=rate,
         )
     ]

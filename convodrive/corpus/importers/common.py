@@ -21,6 +21,7 @@ from convodrive.corpus.writer import Recording, quantise
 from convodrive.motion import rotations
 from convodrive.motion.channels import ARKIT_NAMES, ConversationState
 from convodrive.motion.clip import MotionClip
+from convodrive.motion.resample import resample
 from convodrive.motion.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS
 from convodrive.plumbing.errors import InputFileError
 
@@ -90,16 +91,7 @@ def fit_length(clip: MotionClip, frames: int, audio_path: Path, motion_path: Pat
             f"audio lasts {frames / FPS:.2f} s ({frames} frames at 30 fps) but its motion "
             f"{motion_path.name} has {clip.num_frames} frames ({clip.num_frames / FPS:.2f} s)",
         )
-    index = np.minimum(np.arange(frames), clip.num_frames - 1)
-    return MotionClip(
-        pose=clip.pose[index],
-        translation=clip.translation[index],
-        face=clip.face[index],
-        vad=clip.vad[index],
-        state=clip.state[index],
-        fps=clip.fps,
-        metadata=clip.metadata,
-    )
+    return resample(clip, FPS, frames)
 
 
 def recording(
@@ -117,9 +109,11 @@ def recording(
     group: str | None = None,
     split: str | None = None,
     metadata: dict[str, Any] | None = None,
+    fps: float = FPS,
 ) -> Recording:
-    """One take of imported motion with its audio, as the writer takes it: lengths reconciled, voice
-    activity and state from the audio (as generators compute them at run time)."""
+    """One take of imported motion at ``fps`` with its audio, as the writer takes it: resampled to
+    30 fps, lengths reconciled, voice activity and state from the audio (as generators compute
+    them at run time)."""
     n = len(pose)
     clip = MotionClip(
         pose=np.asarray(pose, np.float32),
@@ -127,7 +121,9 @@ def recording(
         face=np.zeros((n, len(ARKIT_NAMES)), np.float32) if face is None else np.clip(face, 0, 1).astype(np.float32),
         vad=np.zeros((n, 2), np.float32),
         state=np.zeros(n, np.int8),
+        fps=fps,
     )
+    clip = resample(clip, FPS)
     stereo = quantise(np.stack([audio.self_voice, audio.other_voice], axis=1))
     audio = DyadicAudio(stereo[:, 0], stereo[:, 1], audio.source)
     frames = motion_frames_for(audio.duration)

@@ -71,17 +71,19 @@ def _first(data: dict[str, np.ndarray], field: str) -> np.ndarray | None:
     return next((data[k] for k in KEYS[field] if k in data), None)
 
 
-def read_smplh(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(T, 52 * 3) SMPL-H axis-angles and (T, 3) translation, through ``KEYS``."""
+def read_smplh(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
+    """(T, 52 * 3) SMPL-H axis-angles, (T, 3) translation and the frame rate (30 when not given),
+    through ``KEYS``."""
     try:
         with np.load(path, allow_pickle=False) as npz:
             data = {k: np.asarray(npz[k]) for k in npz.files if npz[k].dtype.kind in "fiu"}
             names = list(npz.files)
     except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
         raise InputFileError(path, f"not a readable .npz ({exc.__class__.__name__})") from None
-    fps = _first(data, "fps")
-    if fps is not None and abs(float(np.asarray(fps).reshape(-1)[0]) - FPS) > 1e-3:
-        raise InputFileError(path, f"motion at {float(np.asarray(fps).reshape(-1)[0]):g} fps; expected 30")
+    given = _first(data, "fps")
+    fps = float(np.asarray(given).reshape(-1)[0]) if given is not None else float(FPS)
+    if not 1.0 <= fps <= 1000.0:
+        raise InputFileError(path, f"frame rate {fps:g} is not a frame rate")
     poses = _first(data, "poses")
     if poses is None:
         parts = [_first(data, f) for f in ("global_orient", "body_pose", "left_hand_pose", "right_hand_pose")]
@@ -96,7 +98,7 @@ def read_smplh(path: Path) -> tuple[np.ndarray, np.ndarray]:
     trans = np.zeros((len(poses), 3)) if trans is None else np.asarray(trans, np.float64).reshape(-1, 3)
     if len(trans) != len(poses):
         raise InputFileError(path, f"translation has {len(trans)} frames, poses {len(poses)}")
-    return poses, trans
+    return poses, trans, fps
 
 
 def _mono(path: Path) -> np.ndarray:
@@ -106,7 +108,7 @@ def _mono(path: Path) -> np.ndarray:
 def load(item: tuple[Path, Path | None, str], options: ImportOptions) -> list[Recording]:
     npz, partner_npz, dyad = item
     wav = npz.with_suffix(".wav")
-    poses, trans = read_smplh(npz)
+    poses, trans, fps = read_smplh(npz)
     pose, missing = pose_from_joints(poses, SMPLH_JOINTS, npz)
     pose, translation = upright_root(pose, trans)
     own = _mono(wav)
@@ -133,5 +135,6 @@ def load(item: tuple[Path, Path | None, str], options: ImportOptions) -> list[Re
                 "partner": partner_npz.stem if partner_npz is not None else None,
                 "face": "not in SMPL-H: masked",
             },
+            fps=fps,
         )
     ]
