@@ -77,13 +77,14 @@ def synthesised_dialogue(path: Path, minutes: float) -> None:
 
 
 def measure(command: list[str], cwd: Path | None = None) -> dict:
-    start = time.perf_counter()
-    proc = subprocess.Popen(command, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - start
-    stderr = proc.stderr.read() if proc.stderr else ""
-    if status != 0:
-        raise RuntimeError(f"{' '.join(command)} failed: {stderr[-2000:]}")
+    with tempfile.TemporaryFile("w+") as errors:
+        start = time.perf_counter()
+        proc = subprocess.Popen(command, cwd=cwd, stdout=subprocess.DEVNULL, stderr=errors, text=True)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - start
+        if status != 0:
+            errors.seek(0)
+            raise RuntimeError(f"{' '.join(command)} failed: {errors.read()[-2000:]}")
     return {"peak_rss_mb": round(usage.ru_maxrss / 1024, 1), "wall_s": round(wall, 1)}
 
 
@@ -115,7 +116,7 @@ def main() -> int:
                     audio = work / f"dialogue-{minutes}.flac"
                     synthesised_dialogue(audio, minutes)
                     command = [sys.executable, "-m", "convodrive.cli.main", "drive", str(audio), "--backend", "record"]
-                    figures = measure(command + ["--out", str(out), "-q"])
+                    figures = measure(command + ["--out", str(out)])
                     audio.unlink()
                 rows.append({"minutes": minutes, **figures, "outputs_mb": folder_mb(out)})
                 subprocess.run(["rm", "-rf", str(out)], check=True)
