@@ -235,6 +235,7 @@ def test_seamless_npz_without_pose_keys_is_one_line_naming_what_it_has(tmp_path:
 
 
 # -- own recordings -------------------------------------------------------------------------------
+@pytest.mark.espeak
 def test_own_recordings_npz_bvh_and_livelink_merge_and_mask(tmp_path: Path) -> None:
     src = tmp_path / "recordings"
     clips = sources.write_own(src)
@@ -275,6 +276,7 @@ def assert_close_rotations(a: np.ndarray, b: np.ndarray, atol: float) -> None:
     np.testing.assert_allclose(rotations.axis_angle_to_matrix(a), rotations.axis_angle_to_matrix(b), atol=atol)
 
 
+@pytest.mark.espeak
 def test_own_wav_without_motion_and_motion_of_another_length(tmp_path: Path) -> None:
     src = tmp_path / "recordings"
     sources.write_own(src)
