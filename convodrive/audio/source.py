@@ -1,27 +1,25 @@
 """Dyadic audio input: WAV, FLAC, OGG, MP3 (libsndfile) and M4A/AAC (ffmpeg), read in chunks.
 
 Channel 0 is self, channel 1 the partner; a mono file means the partner is silent; a file with
-more channels needs an explicit choice. Files are read block by block and resampled with a
-polyphase filter that carries its context across blocks, so a two-hour file runs in constant
-memory and the chunks join seamlessly (they equal resampling the whole file at once).
+more channels needs an explicit choice. Files are read block by block through a streaming
+polyphase resampler (``resample``), so a two-hour file runs in constant memory and the chunks join
+seamlessly (they equal resampling the whole file at once).
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import math
 from collections.abc import Callable, Iterator
-from fractions import Fraction
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 import soundfile as sf
-from scipy.signal import resample_poly
 
 from convodrive import FPS
 from convodrive.audio import ffmpeg
+from convodrive.audio.resample import StreamResampler
 from convodrive.plumbing.errors import InputFileError, os_reason
 
 ANALYSIS_RATE = 16_000
@@ -31,6 +29,8 @@ CHUNK_SAMPLES = 1_600
 SUPPORTED_FORMATS = {"WAV", "WAVEX", "RF64", "W64", "FLAC", "OGG", "AIFF", "MP3"}
 """libsndfile's formats that convodrive reads; M4A and AAC go through ffmpeg (``audio.ffmpeg``)."""
 READABLE = "WAV, FLAC, OGG, MP3 and M4A/AAC"
+SUPPORTED_EXTENSIONS = {".wav", ".rf64", ".w64", ".flac", ".ogg", ".oga", ".aiff", ".aif", ".mp3", ".m4a", ".aac"}
+"""File names that say "audio file" (where an argument may also name a device)."""
 _BLOCK_SECONDS = 2.0
 
 
@@ -202,47 +202,28 @@ class AudioSource:
         )
 
     def _resampled_blocks(self) -> Iterator[tuple[np.ndarray, np.ndarray, bool]]:
-        """Resample block by block with ``ctx`` native samples of context on each side.
-
-        Both the block length and the context are multiples of ``down``, so each block maps to a
-        whole number of output samples and the context trims off exactly. The end is where the
-        reader runs dry, so a decoder that only estimated the length still ends cleanly.
-        """
-        ratio = Fraction(ANALYSIS_RATE, self.info.sample_rate)
-        up, down = ratio.numerator, ratio.denominator
-        ctx = down * math.ceil((10 * max(up, down) / up + 4) / down) if ratio != 1 else 0
-        block = down * max(1, int(_BLOCK_SECONDS * self.info.sample_rate) // down)
+        """Read block by block through a streaming resampler (its output equals resampling the
+        whole file at once). The end is where the reader runs dry, so a decoder that only
+        estimated the length still ends cleanly."""
         cols = [self.channel_map.self_channel] + (
             [self.channel_map.other_channel] if self.channel_map.other_channel is not None else []
         )
+        resampler = StreamResampler(self.info.sample_rate, ANALYSIS_RATE, channels=len(cols))
+        block = max(1, int(_BLOCK_SECONDS * self.info.sample_rate))
         decoded = 0  # native samples handed out so far, for the position of a decoding error
         with self._open(cols) as reader, self._decoding(lambda: decoded):
-            history = np.zeros((ctx, len(cols)), np.float32)
-            ahead = reader.read(block + ctx)
-            dry = len(ahead) < block + ctx
-            while len(ahead):
-                if not dry:
-                    more = reader.read(block)
-                    dry = len(more) < block
-                    ahead = np.concatenate([ahead, more])
-                current_len = min(block, len(ahead))
-                last = dry and len(ahead) <= block
-                window = np.concatenate([history, ahead[: current_len + ctx]])
-                if len(window) < 2 * ctx + current_len:
-                    window = np.concatenate(
-                        [window, np.zeros((2 * ctx + current_len - len(window), len(cols)), np.float32)]
-                    )
-                if ratio == 1:
-                    out = window
-                else:
-                    out = resample_poly(window, up, down, axis=0).astype(np.float32)
-                first = ctx * up // down
-                count = current_len * up // down if not last else math.ceil(current_len * up / down)
-                out = out[first : first + count]
-                decoded += current_len
+            data = reader.read(block)
+            while True:
+                more = reader.read(block) if len(data) == block else data[:0]
+                last = len(more) == 0
+                out = resampler.push(data)
+                if last:
+                    out = np.concatenate([out, resampler.finish(flat=False)])
+                decoded += len(data)
                 yield out[:, 0], (out[:, 1] if out.shape[1] > 1 else np.zeros(len(out), np.float32)), last
-                history = window[current_len : current_len + ctx] if ctx else history
-                ahead = ahead[current_len:]
+                if last:
+                    return
+                data = more
 
 
 class _Reader(Protocol):

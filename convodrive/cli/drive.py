@@ -7,10 +7,9 @@ import logging
 import sys
 from pathlib import Path
 
-from convodrive.cli.options import backend_key_value, channel_map, int_in, key_value, name_list
+from convodrive.cli.options import add_motion_options, channel_map, int_in, plugin_options
 from convodrive.cli.progress import frame_progress
-from convodrive.pipeline import DEFAULT_GENERATOR, MAX_SAMPLES, DriveRequest, DriveResult, drive
-from convodrive.plumbing.errors import UserError
+from convodrive.pipeline import MAX_SAMPLES, DriveRequest, DriveResult, drive
 from convodrive.plumbing.logs import FILE_ONLY
 
 log = logging.getLogger(__name__)
@@ -24,27 +23,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "and send it at 30 fps to each backend.",
     )
     p.add_argument("audio", type=Path, metavar="AUDIO", help="WAV, FLAC or OGG file, any sample rate")
-    p.add_argument("--generator", default=DEFAULT_GENERATOR, help=f"generator plugin (default: {DEFAULT_GENERATOR})")
-    p.add_argument(
-        "--backend",
-        type=name_list,
-        default=("record",),
-        metavar="NAME[,NAME]",
-        help="backend plugins, comma-separated (default: record)",
-    )
-    p.add_argument(
-        "--config",
-        metavar="FILE|NAME",
-        help="robot profile or run preset: a YAML file, or a bundled profile's name (e.g. servo_head)",
-    )
-    p.add_argument(
-        "--out",
-        type=Path,
-        default=Path("convodrive-out"),
-        metavar="DIR",
-        help="output folder (default: ./convodrive-out)",
-    )
-    p.add_argument("--seed", type=int, default=0, help="random seed: the same seed gives the same motion (default: 0)")
+    add_motion_options(p)
     p.add_argument(
         "--samples",
         type=int_in(1, MAX_SAMPLES),
@@ -69,42 +48,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="SELF,OTHER",
         help="which file channels are self and partner (needed for files with more than 2 channels)",
     )
-    p.add_argument(
-        "--motion",
-        type=Path,
-        metavar="FILE",
-        help="motion file for the replay generator (.npz, .bvh or Live Link .csv)",
-    )
-    p.add_argument(
-        "-G",
-        "--generator-option",
-        type=key_value,
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="generator option, e.g. -G expressiveness=1.5",
-    )
-    p.add_argument(
-        "-B",
-        "--backend-option",
-        type=backend_key_value,
-        action="append",
-        default=[],
-        metavar="BACKEND.KEY=VALUE",
-        help="backend option, e.g. -B render.camera=face",
-    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    gen_options = dict(args.generator_option)
-    if args.motion is not None:
-        if args.generator != "replay":
-            raise UserError(f"--motion is for the replay generator (this run's generator is {args.generator})")
-        gen_options["motion"] = str(args.motion)
-    backend_options: dict[str, dict] = {}
-    for backend, key, value in args.backend_option:
-        backend_options.setdefault(backend, {})[key] = value
+    gen_options, backend_options = plugin_options(args)
     request = DriveRequest(
         audio=args.audio,
         generator=args.generator,

@@ -25,6 +25,7 @@ log = logging.getLogger("convodrive.cli")
 # Each module defines ``register(subparsers)``, which adds its subcommand and sets ``func``.
 COMMAND_MODULES: tuple[str, ...] = (
     "convodrive.cli.drive",
+    "convodrive.cli.live",
     "convodrive.cli.demo",
     "convodrive.cli.plugins",
     "convodrive.cli.eval",

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from convodrive.audio.source import ChannelMap
+from convodrive.pipeline import DEFAULT_GENERATOR
+from convodrive.plumbing.errors import UserError
 from convodrive.plumbing.safe_yaml import parse_scalar
 from convodrive.plumbing.text import clip_value
 
@@ -72,3 +75,60 @@ def backend_key_value(text: str) -> tuple[str, str, Any]:
             f"expected BACKEND.KEY=VALUE (e.g. render.camera=face), got {clip_value(text)}"
         )
     return backend, option, value
+
+
+def add_motion_options(p: argparse.ArgumentParser) -> None:
+    """The options every run shares: generator, backends, config, output folder, seed, --motion, -G, -B."""
+    p.add_argument("--generator", default=DEFAULT_GENERATOR, help=f"generator plugin (default: {DEFAULT_GENERATOR})")
+    p.add_argument(
+        "--backend",
+        type=name_list,
+        default=("record",),
+        metavar="NAME[,NAME]",
+        help="backend plugins, comma-separated (default: record)",
+    )
+    p.add_argument(
+        "--config",
+        metavar="FILE|NAME",
+        help="robot profile or run preset: a YAML file, or a bundled profile's name (e.g. servo_head)",
+    )
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("convodrive-out"),
+        metavar="DIR",
+        help="output folder (default: ./convodrive-out)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="random seed: the same seed gives the same motion (default: 0)")
+    p.add_argument("--motion", type=Path, metavar="FILE", help="motion file for the replay generator (.npz, .bvh or Live Link .csv)")
+    p.add_argument(
+        "-G",
+        "--generator-option",
+        type=key_value,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="generator option, e.g. -G expressiveness=1.5",
+    )
+    p.add_argument(
+        "-B",
+        "--backend-option",
+        type=backend_key_value,
+        action="append",
+        default=[],
+        metavar="BACKEND.KEY=VALUE",
+        help="backend option, e.g. -B render.camera=face",
+    )
+
+
+def plugin_options(args: argparse.Namespace) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
+    """Generator options, and backend options by backend name, from ``add_motion_options``."""
+    gen_options = dict(args.generator_option)
+    if args.motion is not None:
+        if args.generator != "replay":
+            raise UserError(f"--motion is for the replay generator (this run's generator is {args.generator})")
+        gen_options["motion"] = str(args.motion)
+    backend_options: dict[str, dict[str, Any]] = {}
+    for backend, key, value in args.backend_option:
+        backend_options.setdefault(backend, {})[key] = value
+    return gen_options, backend_options

@@ -70,6 +70,9 @@ class TargetFrame:
     time: float
     values: np.ndarray
     takes: tuple[MotionFrame, ...]
+    dispatched: float = 0.0
+    """``time.monotonic()`` when the clock sent the frame out (real-time runs; 0 offline): lets a
+    backend or the run report measure how long a frame took to reach its body."""
 
     @property
     def motion(self) -> MotionFrame:

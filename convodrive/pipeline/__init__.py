@@ -5,6 +5,7 @@ know which"); the CLI calls it and nothing but the CLI imports it.
 """
 
 from convodrive.pipeline.config import RunConfig, load_run_config
+from convodrive.pipeline.live import LiveRequest, live
 from convodrive.pipeline.run import DEFAULT_GENERATOR, MAX_SAMPLES, DriveRequest, DriveResult, drive
 
 __all__ = [
@@ -12,7 +13,9 @@ __all__ = [
     "MAX_SAMPLES",
     "DriveRequest",
     "DriveResult",
+    "LiveRequest",
     "RunConfig",
     "drive",
+    "live",
     "load_run_config",
 ]

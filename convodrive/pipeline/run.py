@@ -19,9 +19,9 @@ from convodrive.audio.source import (
 from convodrive.backends.base import Session
 from convodrive.generators.base import Generator, take_seed
 from convodrive.pipeline.backends import close_all, make_backends, open_backends, safe_outputs
-from convodrive.pipeline.config import load_run_config
+from convodrive.pipeline.config import RunConfig, load_run_config
 from convodrive.plugins import GENERATOR_GROUP, load_plugin
-from convodrive.plugins.options import merge_options
+from convodrive.plugins.options import PluginOptions, merge_options
 from convodrive.plumbing.errors import UserError
 from convodrive.plumbing.outdir import OutputFolder
 from convodrive.scheduler import MonotonicClock, Scheduler, SimulatedClock, build_report, write_report
@@ -64,6 +64,16 @@ class DriveResult:
     outputs: list[Path]
 
 
+def make_generator(name: str, config: RunConfig, options: dict[str, Any]) -> tuple[Generator, PluginOptions]:
+    """The named generator with its options merged (the config's, then the caller's); a bad name
+    or option is a ``UserError``."""
+    gen_cls: type[Generator] = load_plugin(GENERATOR_GROUP, name)
+    merged = merge_options(
+        gen_cls.Options, [(config.where, config.generator_options(name)), ("", options)], plugin=f"generator {name}"
+    )
+    return gen_cls(merged), merged
+
+
 def drive(
     request: DriveRequest,
     on_frame: Callable[[int, int], None] | None = None,
@@ -79,13 +89,7 @@ def drive(
     source = _audio_source(request)
     config = load_run_config(request.config)
     planned = make_backends(request.backends, config, request.backend_options)
-    gen_cls: type[Generator] = load_plugin(GENERATOR_GROUP, request.generator)
-    gen_options = merge_options(
-        gen_cls.Options,
-        [(config.where, config.generator_options(request.generator)), ("", request.generator_options)],
-        plugin=f"generator {request.generator}",
-    )
-    generator: Generator = gen_cls(gen_options)
+    generator, gen_options = make_generator(request.generator, config, request.generator_options)
     realtime = request.realtime if request.realtime is not None else any(p.backend.realtime for p in planned)
     seeds = [take_seed(request.seed, i) for i in range(request.samples)]
 

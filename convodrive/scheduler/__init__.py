@@ -1,6 +1,6 @@
 """The scheduler: a clock, a producer, one worker per backend, and the run report."""
 
-from convodrive.scheduler.clock import Clock, MonotonicClock, SimulatedClock
+from convodrive.scheduler.clock import Clock, MonotonicClock, PlaybackClock, SimulatedClock
 from convodrive.scheduler.loop import Scheduler
 from convodrive.scheduler.report import RunResult, build_report, summarize, write_report
 from convodrive.scheduler.route import Route
@@ -14,6 +14,7 @@ __all__ = [
     "Clock",
     "DropOldestSlot",
     "MonotonicClock",
+    "PlaybackClock",
     "Route",
     "RunResult",
     "Scheduler",

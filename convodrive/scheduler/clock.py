@@ -6,8 +6,9 @@ Three clocks serve three kinds of run:
   costs nothing, so the run goes as fast as the slowest backend takes frames.
 - ``MonotonicClock``: real-time runs from files. Frame k is due at ``t0 + k / fps`` on the
   monotonic clock, an absolute deadline, so lateness never accumulates into drift.
-- A playback clock (live runs, ``convodrive.audio.live``): time is the position of the self voice
-  that has left the speaker, so the mouth moves with the sound, not with the process.
+- ``PlaybackClock``: live runs. Time is the position of the self voice that has left the
+  speaker (``convodrive.audio.live.playback``), so the mouth moves with the sound, not with the
+  process; frame k goes out when sample k/30 s of the voice is being heard.
 
 A clock says whether it is ``paced``: a paced clock is wall time that cannot be held back, so the
 scheduler feeds real-time backends through drop-oldest slots; an unpaced one delivers every frame.
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import abc
 import time
+from typing import Protocol
 
 
 class Clock(abc.ABC):
@@ -87,3 +89,64 @@ class MonotonicClock(Clock):
             time.sleep(remaining - self.spin_seconds)
         while time.monotonic() < deadline:
             time.sleep(0)
+
+
+class PlaybackPosition(Protocol):
+    """An output stream that knows how much of itself has been heard (``audio.live.Playback``)."""
+
+    def start(self) -> None: ...
+
+    def position_at(self, mono: float) -> float | None:
+        """Seconds of the stream that have left the speaker at ``time.monotonic()`` = ``mono``;
+        None while the stream has not yet said where it is."""
+        ...
+
+    def close(self) -> None: ...
+
+
+class PlaybackClock(Clock):
+    """Time is the playback position of the self voice: the master clock of a live run.
+
+    ``start`` starts the stream; time 0 is when its first sample leaves the speaker, whatever
+    ``delay`` says (the audio server decides when that is). Until the stream reports its first
+    position, ``now`` says ``UNKNOWN`` (before time 0) and ``wait_until`` keeps waiting. Waiting
+    converts the remaining stream time to monotonic time, sleeps, and spins the last
+    ``spin_seconds``, like ``MonotonicClock``; it re-reads the position after each sleep, so the
+    stream's rate governs, not the CPU's clock.
+    """
+
+    paced = True
+    UNKNOWN = -1.0
+    """What ``now`` says before the stream has reported a position."""
+    MAX_SLEEP = 0.05
+
+    def __init__(self, playback: PlaybackPosition, spin_seconds: float = 0.002) -> None:
+        self.playback = playback
+        self.spin_seconds = spin_seconds
+        self._closed = False
+
+    def start(self, delay: float) -> None:
+        self.playback.start()
+
+    def now(self) -> float:
+        position = self.playback.position_at(time.monotonic())
+        return self.UNKNOWN if position is None else position
+
+    def wait_until(self, t: float) -> None:
+        while True:
+            position = self.playback.position_at(time.monotonic())
+            if position is None:
+                time.sleep(0.002)
+                continue
+            remaining = t - position
+            if remaining <= 0:
+                return
+            if remaining > self.spin_seconds:  # re-read at least every MAX_SLEEP: the stream may jump
+                time.sleep(min(remaining - self.spin_seconds, self.MAX_SLEEP))
+            else:
+                time.sleep(0)
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.playback.close()

@@ -35,7 +35,7 @@ from convodrive.scheduler.producer import FrameSource, Producer
 from convodrive.scheduler.report import RunResult
 from convodrive.scheduler.route import Route
 from convodrive.scheduler.slots import END
-from convodrive.scheduler.workers import BackendWorker
+from convodrive.scheduler.workers import BackendWorker, OnSent
 
 _NO_VALUES = np.zeros(0)
 _NO_VALUES.setflags(write=False)
@@ -56,6 +56,7 @@ class Scheduler:
         buffer_frames: int = 30,
         on_frame: Callable[[int], None] | None = None,
         on_start: Callable[[], None] | None = None,
+        on_sent: OnSent | None = None,
         start_delay: float = 0.05,
     ) -> None:
         self.routes = list(routes)
@@ -65,6 +66,7 @@ class Scheduler:
         self.audio_seconds = audio_seconds
         self.on_frame = on_frame
         self.on_start = on_start
+        self.on_sent = on_sent
         self.start_delay = start_delay
         self._producer = Producer(source, buffer_frames)
         self._stop = threading.Event()
@@ -81,7 +83,7 @@ class Scheduler:
     def run(self) -> RunResult:
         previous = self._install_signal_handlers()
         paced = self.clock.paced
-        workers = [BackendWorker(r, paced, self._elapsed) for r in self.routes]
+        workers = [BackendWorker(r, paced, self._elapsed, self.on_sent) for r in self.routes]
         wall_start = time.monotonic()
         jitter: list[float] = []
         late = 0
@@ -184,6 +186,7 @@ class Scheduler:
 
     def _dispatch(self, index: int, takes: tuple[MotionFrame, ...], workers: list[BackendWorker]) -> None:
         time_s = index / self.fps
+        dispatched = time.monotonic() if self.clock.paced else 0.0
         values_by_key: dict[str, np.ndarray] = {}
         for w in workers:
             route = w.route
@@ -194,7 +197,7 @@ class Scheduler:
                 if key not in values_by_key:
                     values_by_key[key] = route.retarget(takes[0])
                 values = values_by_key[key]
-            w.slot.put(TargetFrame(index=index, time=time_s, values=values, takes=takes))
+            w.slot.put(TargetFrame(index=index, time=time_s, values=values, takes=takes, dispatched=dispatched))
 
     def _install_signal_handlers(self) -> dict[int, Any]:
         if threading.current_thread() is not threading.main_thread():

@@ -67,6 +67,7 @@ def build_report(
             "failed": stats.failed,
             "close_error": stats.close_error,
             "send_ms": _percentiles(stats.send_seconds, 1000.0),
+            "dispatch_to_sent_ms": stats.dispatch_to_sent_ms.summary(2),
             "health": result.backend_health.get(stats.name, {}),
             "health_events": stats.health_events,
             "report": result.backend_reports.get(stats.name, {}),

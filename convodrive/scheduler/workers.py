@@ -9,10 +9,16 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from convodrive.motion.targets import TargetFrame
+from convodrive.plumbing.stats import Histogram
 from convodrive.scheduler.route import Route
 from convodrive.scheduler.slots import END, BlockingSlot, DropOldestSlot
 
 log = logging.getLogger(__name__)
+
+OnSent = Callable[[str, TargetFrame, float], None]
+"""Called from a backend's worker after each ``send`` returns: backend name, the frame, and
+``time.monotonic()`` then (a live run turns it into capture-to-body latency)."""
 
 MAX_CONSECUTIVE_ERRORS = 90
 """A backend that raised on 3 s of consecutive frames is marked failed and no longer called."""
@@ -28,13 +34,15 @@ class BackendStats:
     failed: bool = False
     close_error: str = ""
     send_seconds: list[float] = dataclasses.field(default_factory=list)
+    dispatch_to_sent_ms: Histogram = dataclasses.field(default_factory=Histogram)
+    """Real-time runs: from the clock dispatching a frame to ``send`` returning (queue + send)."""
     health_events: list[dict[str, Any]] = dataclasses.field(default_factory=list)
 
 
 class BackendWorker(threading.Thread):
     """Runs one backend: sends what arrives in its slot, and closes it when the run ends."""
 
-    def __init__(self, route: Route, paced: bool, now: Callable[[], float]) -> None:
+    def __init__(self, route: Route, paced: bool, now: Callable[[], float], on_sent: OnSent | None = None) -> None:
         super().__init__(name=f"backend-{route.backend.name}", daemon=True)
         self.route = route
         self.slot: DropOldestSlot | BlockingSlot
@@ -46,6 +54,7 @@ class BackendWorker(threading.Thread):
             self.slot = DropOldestSlot(DropOldestSlot.BACKLOG_CAPACITY)
         self.stats = BackendStats(route.backend.name)
         self._now = now
+        self._on_sent = on_sent
         self._last_status = "ok"
         self._frame = -1
         """The index of the frame last handed to the backend, for the log."""
@@ -67,6 +76,7 @@ class BackendWorker(threading.Thread):
                     backend.send(item)
                     consecutive = 0
                     self.stats.sent += 1
+                    self._sent(item)
                 except Exception as exc:  # a backend fault degrades this backend only
                     consecutive += 1
                     self.stats.errors += 1
@@ -81,6 +91,14 @@ class BackendWorker(threading.Thread):
                 self._watch_health()
         finally:
             self.close_backend()
+
+    def _sent(self, frame: TargetFrame) -> None:
+        if not frame.dispatched:
+            return
+        done = time.monotonic()
+        self.stats.dispatch_to_sent_ms.add(1000.0 * (done - frame.dispatched))
+        if self._on_sent is not None:
+            self._on_sent(self.stats.name, frame, done)
 
     def close_backend(self) -> None:
         try:

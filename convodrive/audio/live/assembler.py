@@ -1,0 +1,221 @@
+"""Both voices on the run's time line, chunked for the generator.
+
+The self voice arrives ahead of time (``self_voice``: the feeder queues it before the speaker
+plays it). The partner's voice can only arrive after it was spoken, so it is placed
+``partner_delay`` seconds after its capture time: a partner sample captured when the run's clock
+read t sits at t + ``partner_delay`` on the time line, which leaves the generator its look-ahead
+of the partner too. That delay is the partner's capture-to-motion latency, and the report measures
+it. Placing by capture time (rather than by counting samples) keeps the two voices aligned when
+the microphone's sample clock drifts from the speaker's: a block that lands more than
+``RESYNC_SECONDS`` off is realigned (a gap filled with silence, or an overlap dropped) and counted.
+
+A chunk is everything both voices have up to now, so the generator never waits longer than the
+partner's latest block. Partner audio that has not arrived ``grace`` seconds after it was captured
+(a late callback, a microphone that went away) becomes silence, so the clock never waits either.
+
+How late audio arrives depends on the device: an audio server may hold a microphone's blocks for
+tens of milliseconds, or 200 ms for an idle monitor. So ``grace`` (and with it the partner delay)
+rises to cover the 90th percentile of recent arrival ages, once past the start-up second where
+servers deliver erratically; it never falls, so the partner's time line moves at most a few times.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import numpy as np
+
+from convodrive.audio.features import frame_edge
+from convodrive.audio.live.capture import PartnerInput
+from convodrive.audio.live.timeline import Timeline
+from convodrive.audio.source import ANALYSIS_RATE, AudioChunk
+from convodrive.plumbing.stats import Histogram
+
+RESYNC_SECONDS = 0.01
+POLL_SECONDS = 0.002
+SETTLE_SECONDS = 1.0
+"""Arrival ages in the input's first second do not move the partner delay (start-up bursts)."""
+AGE_WINDOW = 100
+GRACE_MARGIN = 0.005
+MAX_GRACE = 1.0
+
+
+class LiveAudio:
+    """Yields ``AudioChunk``s of both voices as they become known; see the module docstring.
+
+    ``time_at(mono)`` is the run's clock at monotonic time ``mono`` (None before the clock runs);
+    ``self_end()`` the time-line position where a finite self voice ended (None while it goes on);
+    ``stop_at`` seconds end the run early (``--seconds``).
+    """
+
+    def __init__(
+        self,
+        self_voice: Timeline,
+        self_end: Callable[[], int | None],
+        partner: PartnerInput,
+        time_at: Callable[[float], float | None],
+        partner_delay: float,
+        grace: float,
+        stop_at: float | None = None,
+    ) -> None:
+        self.self_voice = self_voice
+        self.self_end = self_end
+        self.partner = partner
+        self.time_at = time_at
+        self.partner_delay = partner_delay
+        self.grace = grace
+        self.initial_delay = partner_delay
+        self._ages: collections.deque[float] = collections.deque(maxlen=AGE_WINDOW)
+        self._first_block: float | None = None
+        self.stop_at = None if stop_at is None else int(round(stop_at * ANALYSIS_RATE))
+        self.partner_line = Timeline()
+        self.partner_line.fill_to(self._samples(partner_delay))  # nothing was captured before time 0
+        self.frame_capture: dict[int, float] = {}
+        """Frame index -> monotonic time its first partner sample was captured."""
+        self.age_ms = Histogram()
+        """From capturing a block's first sample to handing the block on."""
+        self.resyncs = 0
+        self.late_samples = 0
+        self.dropped_early = 0
+        self.events: list[dict[str, Any]] = []
+        self._lost_reason: str | None = None
+        self._partner_end: int | None = None
+        self._stopped = False
+        self._next_frame = 0
+
+    @staticmethod
+    def _samples(seconds: float) -> int:
+        return int(round(seconds * ANALYSIS_RATE))
+
+    def stop(self) -> None:
+        self._stopped = True
+
+    def chunks(self) -> Iterator[AudioChunk]:
+        position = 0
+        while not self._stopped:
+            self._take_partner()
+            end = self._end()
+            ready = self.self_voice.end
+            if self._partner_silent():
+                self.partner_line.fill_to(ready)
+            ready = min(ready, self.partner_line.end)
+            if end is not None:
+                ready = min(ready, end)
+                if self.partner_line.end < end and self._partner_silent():
+                    self.partner_line.fill_to(end)
+            if ready > position:
+                final = end is not None and ready >= end
+                yield AudioChunk(position, self.self_voice.take(ready), self.partner_line.take(ready), final=final)
+                position = ready
+                if final:
+                    return
+            else:
+                time.sleep(POLL_SECONDS)
+
+    # -- the partner -----------------------------------------------------------------------------
+    def _partner_silent(self) -> bool:
+        """From here on the partner is silence: it ended, or it went away."""
+        return self._partner_end is not None or self._lost()
+
+    def _lost(self) -> bool:
+        if self._lost_reason is None:
+            self._lost_reason = self.partner.lost()
+            if self._lost_reason is not None:
+                self._event(f"partner input lost: {self._lost_reason}; the partner is silent from here on")
+        return self._lost_reason is not None
+
+    def _take_partner(self) -> None:
+        for data, captured in self.partner.pull():
+            self._note_age(time.monotonic() - captured)
+            at = self.time_at(captured)
+            if at is None or at < 0:  # before time 0: the time line's start is silence already
+                self.dropped_early += len(data)
+                continue
+            self._place(data, captured, self._samples(at + self.partner_delay))
+        if self._partner_end is None and self.partner.ended():
+            self._partner_end = self.partner_line.end
+        self._fill_late()
+
+    def _note_age(self, age: float) -> None:
+        """Raise ``grace`` (and the partner delay) when blocks keep arriving later than it allows."""
+        self.age_ms.add(1000.0 * age)
+        now = time.monotonic()
+        if self._first_block is None:
+            self._first_block = now
+        if now - self._first_block < SETTLE_SECONDS:
+            return
+        self._ages.append(age)
+        if len(self._ages) < AGE_WINDOW // 5:
+            return
+        needed = min(float(np.percentile(self._ages, 90)) + GRACE_MARGIN, MAX_GRACE)
+        if needed > self.grace:
+            raise_by = math.ceil((needed - self.grace) * 200) / 200  # in 5 ms steps
+            self.grace += raise_by
+            self.partner_delay += raise_by
+            self._event(
+                f"partner audio arrives up to {1000 * needed:.0f} ms after capture: "
+                f"partner delay raised to {1000 * self.partner_delay:.0f} ms"
+            )
+
+    def _place(self, data: np.ndarray, captured: float, target: int) -> None:
+        line = self.partner_line
+        off = target - line.end
+        if abs(off) > self._samples(RESYNC_SECONDS):
+            self.resyncs += 1
+            if off > 0:
+                line.fill_to(target)
+            else:
+                data = data[-off:]
+                captured -= off / ANALYSIS_RATE
+        if not len(data):
+            return
+        start = line.end
+        while frame_edge(self._next_frame) < start:
+            self._next_frame += 1
+        while frame_edge(self._next_frame) < start + len(data):
+            edge = int(frame_edge(self._next_frame))
+            self.frame_capture[self._next_frame] = captured + (edge - start) / ANALYSIS_RATE
+            self.frame_capture.pop(self._next_frame - 300, None)
+            self._next_frame += 1
+        line.append(data)
+
+    def _fill_late(self) -> None:
+        """Partner audio overdue by ``grace`` becomes silence, so the generator never waits on it."""
+        if self._partner_end is not None:
+            return
+        now = self.time_at(time.monotonic())
+        if now is None:
+            return
+        due = self._samples(now + self.partner_delay - self.grace)
+        filled = self.partner_line.fill_to(due)
+        if filled and not self._lost():
+            self.late_samples += filled
+
+    def _end(self) -> int | None:
+        """Where the run's audio ends: once every input that can end has, or at ``stop_at``."""
+        self_end = self.self_end()
+        ends = None
+        if self_end is not None and self._partner_end is not None:
+            ends = max(self_end, self._partner_end)
+        if self.stop_at is not None:
+            ends = self.stop_at if ends is None else min(ends, self.stop_at)
+        return ends
+
+    def _event(self, text: str) -> None:
+        now = self.time_at(time.monotonic())
+        self.events.append({"time": round(now, 3) if now is not None else None, "event": text})
+
+    def report(self) -> dict[str, Any]:
+        return {
+            "partner_delay_ms": round(1000.0 * self.partner_delay, 1),
+            "initial_partner_delay_ms": round(1000.0 * self.initial_delay, 1),
+            "capture_to_available_ms": self.age_ms.summary(),
+            "resyncs": self.resyncs,
+            "late_ms": round(1000.0 * self.late_samples / ANALYSIS_RATE, 1),
+            "lost": self._lost_reason,
+            "events": self.events,
+        }

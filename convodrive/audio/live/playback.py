@@ -1,0 +1,168 @@
+"""The self voice's output stream, and where its samples are: the master clock of a live run.
+
+The PortAudio callback copies the next block from the playback ring and notes, from PortAudio's
+timing, when the block's first sample will leave the speaker (``outputBufferDacTime``, turned
+into ``time.monotonic`` seconds). Each note says "sample n plays at monotonic time m", so
+``position_at(m)`` is the number of seconds of the stream that have left the speaker by ``m``:
+the run's clock reads it, and motion frame k goes out when sample k/30 s is being heard.
+
+Notes are noisy by a fraction of a millisecond and wrong in two known cases, both handled: the
+callbacks PortAudio makes to fill its buffers at the start come in one burst, often long before
+the audio server really starts playing (PulseAudio waits a second or more), so notes count only
+from the first callback that comes at least half a block after the one before (the stream is
+then pulling at its own pace); and a stall (a server that stopped pulling for a while) moves the
+time line, so a gap of several blocks between callbacks forgets the notes before it. The estimate
+is the median of the last ``ANCHORS`` notes.
+"""
+
+from __future__ import annotations
+
+import collections
+import statistics
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from convodrive.audio.live.devices import Device, portaudio
+from convodrive.audio.live.ring import SampleRing
+from convodrive.plumbing.errors import UserError
+
+BLOCK_SECONDS = 0.01
+"""Callback period: 10 ms blocks."""
+ANCHORS = 32
+MAX_LEAD = 2.0
+"""No output buffer plays more than this far ahead of its callback."""
+STALL_BLOCKS = 5
+"""A gap of this many block periods (or of most of the output latency, for servers that call back
+in bursts) between callbacks means the time line moved: start over."""
+
+
+class Playback:
+    """Plays its ring on ``device`` (at ``rate`` if the device takes it, else at the device's own
+    rate) and knows how much of it has left the speaker."""
+
+    def __init__(self, device: Device, rate: int, ring_seconds: float, latency: float | str = "low") -> None:
+        sd = portaudio()
+        self.device = device
+        self.rate = self._usable_rate(sd, device, rate)
+        self.ring = SampleRing(int(ring_seconds * self.rate))
+        """What the callback plays: the self voice queued ahead, sized by the generator's look-ahead."""
+        self.block = max(1, int(round(self.rate * BLOCK_SECONDS)))
+        self._mono = np.zeros(self.block * 4, np.float32)
+        self._anchors: collections.deque[float] = collections.deque(maxlen=ANCHORS)
+        self._paced = False
+        self._last_call: float | None = None
+        self.portaudio_underflows = 0
+        self.stalls = 0
+        self.callbacks = 0
+        self._closed = threading.Event()
+        self._latency = 0.0
+        channels = 1
+        try:
+            sd.check_output_settings(device=device.index, channels=1, samplerate=self.rate)
+        except Exception:
+            channels = min(2, device.outputs)
+        try:
+            self._stream = sd.OutputStream(
+                device=device.index,
+                samplerate=self.rate,
+                channels=channels,
+                dtype="float32",
+                blocksize=self.block,
+                latency=latency,
+                callback=self._callback,
+            )
+        except Exception as exc:
+            raise UserError(f"--play {device.name!r}: cannot open it for playback ({exc})") from None
+        self._latency = float(self._stream.latency)  # servers that buffer more call back in bursts
+
+    @staticmethod
+    def _usable_rate(sd: Any, device: Device, rate: int) -> int:
+        """``rate`` if the device takes it, else the device's own rate (the caller resamples)."""
+        try:
+            sd.check_output_settings(device=device.index, samplerate=rate)
+            return int(rate)
+        except Exception:
+            return int(device.default_rate)
+
+    @property
+    def latency(self) -> float:
+        """PortAudio's output latency: how long a written block takes to reach the speaker."""
+        return float(self._stream.latency)
+
+    def start(self) -> None:
+        self._stream.start()
+
+    def _callback(self, outdata: np.ndarray, frames: int, time_info: Any, status: Any) -> None:
+        now = time.monotonic()
+        first = self.ring.read_pos
+        if len(self._mono) < frames:
+            self._mono = np.zeros(frames, np.float32)
+        mono = self._mono[:frames]
+        self.ring.read_into(mono)
+        outdata[:] = mono[:, None]
+        self.callbacks += 1
+        if status.output_underflow:
+            self.portaudio_underflows += 1
+        gap = None if self._last_call is None else now - self._last_call
+        self._last_call = now
+        if not self._paced:  # still the start-up burst: these timings are not yet real
+            self._paced = gap is not None and gap >= 0.5 * BLOCK_SECONDS
+            if not self._paced:
+                return
+        elif gap is not None and gap > max(STALL_BLOCKS * BLOCK_SECONDS, 0.75 * self._latency):
+            self.stalls += 1
+            self._anchors.clear()
+        dac = time_info.outputBufferDacTime
+        lead = (dac - time_info.currentTime) if dac > 0 else self.latency
+        if 0.0 <= lead <= MAX_LEAD:  # anything else is a host API's nonsense, not a position
+            self._anchors.append(now + lead - first / self.rate)
+
+    def position_at(self, mono: float) -> float | None:
+        """Seconds of the stream that have left the speaker at monotonic time ``mono``; None until
+        the stream has told us where it is."""
+        anchors = list(self._anchors)
+        if not anchors:
+            return None
+        return mono - statistics.median(anchors)
+
+    def played(self) -> int:
+        """Samples the callback has taken from the ring (ahead of the speaker by the latency)."""
+        return self.ring.read_pos
+
+    def drain(self, position: int, timeout: float) -> None:
+        """Wait until sample ``position`` has left the speaker, or ``timeout`` seconds."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            now = time.monotonic()
+            at = self.position_at(now)
+            if at is not None and at * self.rate >= position:
+                return
+            time.sleep(0.005)
+
+    def close(self) -> None:
+        if self._closed.is_set():
+            return
+        self._closed.set()
+        try:
+            self._stream.abort()
+            self._stream.close()
+        except Exception:
+            pass
+
+    def report(self) -> dict[str, Any]:
+        anchors = list(self._anchors)
+        spread = 1000.0 * statistics.median(abs(a - statistics.median(anchors)) for a in anchors) if anchors else None
+        return {
+            "device": self.device.name,
+            "sample_rate": self.rate,
+            "block_ms": round(1000.0 * self.block / self.rate, 2),
+            "output_latency_ms": round(1000.0 * self.latency, 2),
+            "underruns": self.ring.underruns,
+            "underrun_ms": round(1000.0 * self.ring.underrun_samples / self.rate, 1),
+            "portaudio_underflows": self.portaudio_underflows,
+            "stalls": self.stalls,
+            "timing_noise_ms": round(spread, 3) if spread is not None else None,
+        }

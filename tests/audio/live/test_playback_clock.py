@@ -1,0 +1,49 @@
+"""The playback clock against a real audio server: time is where the played stream is."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from convodrive.audio.live.capture import MicrophoneInput, Recording
+from convodrive.audio.live.devices import find_device
+from convodrive.audio.live.playback import Playback
+from convodrive.scheduler import PlaybackClock
+from tests.pulse import MONITOR, SPEAKER, pulse  # noqa: F401 (fixture)
+
+
+def test_clock_reads_where_the_speaker_is(pulse, monkeypatch) -> None:  # noqa: F811
+    for key, value in pulse.env.items():
+        monkeypatch.setenv(key, value)
+    rate = 16000
+    playback = Playback(find_device(SPEAKER, "output", "--play"), rate, ring_seconds=4.0, latency=0.15)
+    monitor = Recording(MicrophoneInput(find_device(MONITOR, "input", "--monitor"), ring_seconds=2.0))
+    clicks = np.arange(1.0, 3.6, 0.37)  # stream seconds
+    signal = np.zeros(int(4.0 * rate), np.float32)
+    for t in clicks:
+        i = int(t * rate)
+        signal[i : i + 80] = 0.8 * np.sin(np.arange(80) * 2 * np.pi * 1000 / rate)
+    assert playback.ring.write(signal) == len(signal)
+    clock = PlaybackClock(playback)
+    monitor.source.start()
+    monitor.start()
+    clock.start(0.0)
+    predicted = []
+    try:
+        for t in clicks:  # when does the clock say each click is heard?
+            clock.wait_until(t)
+            predicted.append(time.monotonic())
+        clock.wait_until(clicks[-1] + 0.3)
+    finally:
+        clock.close()
+        monitor.stop()
+    recording = monitor.samples()
+    loud = np.flatnonzero(np.abs(recording) > 0.3)
+    starts = loud[np.concatenate([[True], np.diff(loud) > rate // 10])]
+    heard = monitor.mono_at(starts)
+    assert len(heard) == len(clicks), (len(heard), len(clicks))
+    error_ms = 1000.0 * (np.asarray(predicted) - heard)
+    # 150 ms of output latency: a clock that ignored where the speaker is would be off by that much.
+    assert playback.latency >= 0.1
+    assert np.all(np.abs(error_ms) < 10.0), error_ms

@@ -1,0 +1,219 @@
+"""``convodrive live`` end to end against a real PulseAudio server with null sinks.
+
+The speaker is a null sink; its monitor is a microphone beside it, so the run records what really
+left the speaker and measures when the mouth opened against it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import soundfile as sf
+
+from convodrive.audio.synth import speak
+from convodrive.eval.sync import level_db, mouth_onsets, pair_onsets, speech_onsets
+from convodrive.motion.channels import BLENDSHAPE_INDEX
+from convodrive.motion.npz import load_clip
+from tests.conftest import run_cli
+from tests.pulse import MIC, MONITOR, SPEAKER, dialogue_halves, pulse  # noqa: F401 (fixture)
+
+JAW = BLENDSHAPE_INDEX["jawOpen"]
+FRAME_MS = 1000.0 / 30
+
+
+def _live(pulse, out: Path, *args: str, timeout: float = 120):  # noqa: F811
+    done = run_cli("live", "--out", str(out), *args, env=pulse.env, timeout=timeout)
+    report = json.loads((out / "run_report.json").read_text()) if (out / "run_report.json").exists() else None
+    return done, report
+
+
+@pytest.mark.parametrize("latency", ["0.1", "0.3"])
+def test_mouth_opens_when_the_speaker_says_so(pulse, tmp_path: Path, latency: str) -> None:  # noqa: F811
+    """The self voice is played, the speaker's monitor recorded; every mouth opening is within a
+    frame of the speech onset heard, also with 300 ms of output latency (which a clock that did
+    not read the playback position would show as a 300 ms offset)."""
+    self_wav, partner_wav = dialogue_halves(tmp_path / "in", seconds=10.0)
+    out = tmp_path / "out"
+    done, report = _live(
+        pulse,
+        out,
+        "--self", str(self_wav), "--partner", str(partner_wav),
+        "--play", SPEAKER, "--monitor", MONITOR, "--play-latency", latency,
+        "--backend", "record",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    live = report["live"]
+    assert live["clock"] == "playback"
+    offset = live["audio_motion_offset"]
+    assert offset["measured"] and offset["pairs"] >= 3, offset
+    assert abs(offset["median_ms"]) <= FRAME_MS, offset
+    assert offset["min_ms"] >= -FRAME_MS - 5 and offset["max_ms"] <= FRAME_MS + 5, offset
+    assert abs(live["sync_error_ms"]) <= 10.0, live
+    assert live["playback"]["output_latency_ms"] >= 1000.0 * float(latency) - 20.0
+
+    # The same figure again from the evidence the run saved, with this test's own arithmetic.
+    evidence = np.load(out / "sync.npz")
+    monitor = evidence["monitor"].astype(np.float32) / 32768.0
+    rate = int(evidence["monitor_rate"])
+    onset_samples = (speech_onsets(level_db(monitor, rate)) * rate).astype(int)
+    heard = np.interp(onset_samples, evidence["monitor_index"], evidence["monitor_mono"])
+    jaw = load_clip(out / "motion.npz").face[:, JAW]
+    assert np.allclose(jaw[: len(evidence["jaw_open"])], evidence["jaw_open"], atol=1e-6)
+    shown = evidence["frame_dispatch_mono"][mouth_onsets(evidence["jaw_open"])]
+    again = pair_onsets(heard, shown).summary()
+    assert again["pairs"] == offset["pairs"]
+    assert again["median_ms"] == pytest.approx(offset["median_ms"], abs=3.0)
+
+    # The motion covers the whole voice, and the report carries the latency figures.
+    assert report["frames"] == pytest.approx(10.0 * 30, abs=15)
+    latency_ms = live["latency_ms"]
+    assert latency_ms["self_lead"] > 1000.0 * 4 / 30
+    assert latency_ms["partner_capture_to_sent"]["record"]["count"] > 200
+    assert report["backends"]["record"]["dispatch_to_sent_ms"]["count"] == report["frames"]
+
+
+def _busy_port() -> tuple[socket.socket, int]:
+    held = socket.socket()
+    held.bind(("127.0.0.1", 0))
+    held.listen(1)
+    return held, held.getsockname()[1]
+
+
+@pytest.mark.parametrize(
+    "args, problem",
+    [
+        (["--play", "nosuch", "--self", "{self}"], "--play 'nosuch': no such output device"),
+        (["--partner", "nosuch-mic"], "--partner 'nosuch-mic': no such input device"),
+        (["--monitor", "nosuch"], "--monitor 'nosuch': no such input device"),
+        (["--self", "{dir}/missing.wav"], "missing.wav: no such file"),
+        (["--partner", "{dir}/missing.wav"], "missing.wav: no such file"),
+        (["--self", "tcp://127.0.0.1:{busy}"], "cannot listen there (the port is busy)"),
+        (["--self", "tcp://127.0.0.1"], "expected tcp://HOST:PORT"),
+        (["--seconds", "-1"], "--seconds must be positive"),
+        (["--backend", "nosuch"], "nosuch"),
+    ],
+)
+def test_bad_input_is_one_line(pulse, tmp_path: Path, args: list[str], problem: str) -> None:  # noqa: F811
+    self_wav, _ = dialogue_halves(tmp_path / "in", seconds=2.0)
+    held, busy = _busy_port()
+    try:
+        args = [a.format(self=self_wav, dir=tmp_path, busy=busy) for a in args]
+        done = run_cli(
+            "live", "--partner", "none", "--seconds", "1", "--out", str(tmp_path / "out"), *args, env=pulse.env
+        )
+    finally:
+        held.close()
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and problem in lines[0], done.stderr
+    assert not (tmp_path / "out" / "run_report.json").exists()
+
+
+def test_list_devices_names_the_sinks(pulse) -> None:  # noqa: F811
+    done = run_cli("live", "--list-devices", env=pulse.env)
+    assert done.returncode == 0, done.stderr
+    for name in (SPEAKER, MONITOR, MIC):
+        assert name in done.stdout
+
+
+def _connect(port: int, timeout: float = 30.0) -> socket.socket:
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return socket.create_connection(("127.0.0.1", port), timeout=5)
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
+
+
+def test_self_stream_that_stops_mid_sentence(pulse, tmp_path: Path) -> None:  # noqa: F811
+    """An agent streams half a sentence over the socket, goes quiet with the connection open, then
+    hangs up: the mouth closes soon after the voice stops, and the run goes on to its end."""
+    voice = speak("Well, the thing about the robot head is that it", rate=150)
+    sent = voice[: int(1.3 * 16000)]  # stops mid-word
+    pcm = np.clip(sent * 32767, -32768, 32767).astype("<i2").tobytes()
+    probe = socket.socket()
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    out = tmp_path / "out"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "convodrive.cli.main", "live", "--self", f"tcp://127.0.0.1:{port}",
+         "--partner", "none", "--play", SPEAKER, "--monitor", MONITOR, "--seconds", "6",
+         "--backend", "record", "--out", str(out)],
+        env={**os.environ, **pulse.env}, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        agent = _connect(port)
+        time.sleep(1.0)
+        step = 320 * 2  # 20 ms of s16le, at the pace a speech synthesiser streams
+        for i in range(0, len(pcm), step):
+            agent.sendall(pcm[i : i + step])
+            time.sleep(0.02)
+        time.sleep(2.0)  # quiet, connection still open
+        agent.close()
+        stdout, stderr = run.communicate(timeout=60)
+    finally:
+        if run.poll() is None:
+            run.kill()
+    assert run.returncode == 0, stderr
+    report = json.loads((out / "run_report.json").read_text())
+    events = [e["event"] for e in report["live"]["events"]]
+    assert any("connected" in e for e in events) and "speaker hung up" in events, events
+    assert any("stalled mid-stream" in e for e in events), events
+    assert report["frames"] == pytest.approx(6 * 30, abs=10)
+    jaw = load_clip(out / "motion.npz").face[:, JAW]
+    open_frames = np.flatnonzero(jaw > 0.1)
+    assert len(open_frames) >= 10, "the streamed speech moved the mouth"
+    spoken = (open_frames[-1] - open_frames[0]) / 30
+    assert spoken <= 1.3 + 0.3, spoken  # the mouth stopped with the voice, not later
+    assert np.all(jaw[open_frames[-1] + 1 :] < 0.1) and len(jaw) - open_frames[-1] > 60
+    heard = np.load(out / "sync.npz")["monitor"].astype(np.float32) / 32768
+    assert np.sum(level_db(heard, 16000) > -35) * 0.01 == pytest.approx(1.3, abs=0.4), "the half sentence was played"
+
+
+def test_microphone_that_disappears(pulse, tmp_path: Path) -> None:  # noqa: F811
+    """The partner talks into a microphone that is unplugged mid-run: one line in the report, the
+    run goes on to its end with a silent partner."""
+    words = speak("Yes, I saw it yesterday, and it looked great.", voice="en-us+f3", rate=170)
+    partner_wav = tmp_path / "partner_talks.wav"
+    sf.write(partner_wav, np.concatenate([np.zeros(8000, np.float32), words, np.zeros(48000, np.float32)]), 16000)
+    self_wav, _ = dialogue_halves(tmp_path / "in", seconds=7.0)
+    out = tmp_path / "out"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "convodrive.cli.main", "live", "--self", str(self_wav), "--partner", MIC,
+         "--play", SPEAKER, "--seconds", "7", "--backend", "record", "--out", str(out)],
+        env={**os.environ, **pulse.env}, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    talking = None
+    try:
+        assert "live at 30 fps" in run.stderr.readline()  # the run is listening
+        talking = pulse.room.play(partner_wav, "room")
+        time.sleep(4.0)
+        pulse.room.stop()  # the microphone's server goes away, as an unplugged USB microphone does
+        stdout, stderr = run.communicate(timeout=60)
+    finally:
+        if talking is not None:
+            talking.kill()
+        if run.poll() is None:
+            run.kill()
+    assert run.returncode == 0, stderr
+    report = json.loads((out / "run_report.json").read_text())
+    partner = report["live"]["partner"]
+    assert partner["lost"], partner
+    lost = [e for e in report["live"]["events"] if e["event"].startswith("partner input lost")]
+    assert len(lost) == 1, report["live"]["events"]
+    assert report["frames"] == pytest.approx(7 * 30, abs=10), "the run went on to the end of the self voice"
+    vad = load_clip(out / "motion.npz").vad[:, 1]
+    lost_frame = int(lost[0]["time"] * 30)
+    assert vad[:lost_frame].max() > 0.5, "the partner was heard while the microphone worked"
+    assert np.all(vad[lost_frame + 30 :] == 0), "and is silent after it went away (delay and hangover aside)"
