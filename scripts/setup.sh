@@ -11,10 +11,12 @@ dev=0
 [ "${1:-}" = "--dev" ] && dev=1
 
 # espeak-ng makes the tests' speech; ffmpeg brings ffprobe for checking videos; EGL and OSMesa are
-# the two headless GL routes for the renderer and MuJoCo.
-apt_packages=(espeak-ng ffmpeg libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6)
-# The tests also open the avatar's live window on a virtual X display.
-[ "$dev" = 1 ] && apt_packages+=(xvfb)
+# the two headless GL routes for the renderer and MuJoCo; PortAudio (with ALSA's PulseAudio plugin)
+# is live audio.
+apt_packages=(espeak-ng ffmpeg libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 libportaudio2 libasound2-plugins)
+# The tests also open the avatar's live window on a virtual X display, run live conversations on
+# their own PulseAudio servers, and load the live page in headless Chromium.
+[ "$dev" = 1 ] && apt_packages+=(xvfb pulseaudio pulseaudio-utils chromium)
 missing=()
 for pkg in "${apt_packages[@]}"; do
     dpkg -s "$pkg" >/dev/null 2>&1 || missing+=("$pkg")
@@ -45,7 +47,7 @@ pip_quiet() {
 }
 echo "setup: installing Python packages into .venv"
 pip_quiet install -U pip setuptools wheel
-extras="speech,sim,render,hardware"
+extras="speech,sim,render,hardware,live"
 [ "$dev" = 1 ] && extras="$extras,dev"
 pip_quiet install -e ".[$extras]"
 # pyrender 0.1.45 pins PyOpenGL==3.1.0, which breaks MuJoCo's EGL/OSMesa bindings. The render

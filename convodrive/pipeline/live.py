@@ -68,7 +68,7 @@ class LiveRequest:
     play_latency: float | str = 0.1
     generator: str = DEFAULT_GENERATOR
     backends: tuple[str, ...] = ("record",)
-    config: Path | None = None
+    config: str | Path | None = None
     out_dir: Path = Path("convodrive-out")
     seed: int = 0
     generator_options: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -129,7 +129,7 @@ def live(request: LiveRequest, on_start: Callable[[], None] | None = None) -> Dr
             "name": request.generator,
             "seed": request.seed,
             "lookahead_frames": generator.lookahead_frames,
-            "options": gen_options,
+            "options": gen_options.as_dict(),
         },
         "config": str(request.config) if request.config else None,
         "live": run.report(),
