@@ -1,5 +1,5 @@
-"""Live Link Face CSV export and import: the take format of Epic's Live Link Face app, which face
-rigs import.
+"""Live Link Face formats: the app's CSV takes (export and import), which face rigs import, and
+its UDP packets (``encode_packet``), which Unreal's Live Link plugin listens to.
 
 One row per frame: ``Timecode`` (HH:MM:SS:FF.mmm, FF counting frames at the clip's rate and mmm
 the sub-frame in thousandths), ``BlendShapeCount`` (61 = 52 blendshapes + 9 rotations), the 52
@@ -24,6 +24,7 @@ from __future__ import annotations
 import csv
 import os
 import re
+import struct
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -213,3 +214,33 @@ def _frame_indices(path: Path, times: np.ndarray, fps: float, lines: list[int]) 
             path, f"line {lines[bad]}: timecode jumps {gap:.1f} s ahead (a gap of more than {_MAX_GAP_SECONDS:g} s)"
         )
     return index
+
+
+# ---------------------------------------------------------------- UDP packets
+
+UDP_PORT = 11111
+"""Where the app sends, and Unreal's Live Link Face source listens, by default."""
+PACKET_VERSION = 6
+_ARKIT_ORDER = [BLENDSHAPE_INDEX[n] for n in ARKIT_NAMES]
+
+
+def encode_packet(
+    device_id: str, subject: str, frame: int, face: np.ndarray, rotations: np.ndarray, fps: int = 30
+) -> bytes:
+    """One Live Link Face UDP datagram, big-endian as the app sends it: the packet version (a byte),
+    the device id and the subject name (each an int32 length and UTF-8), the frame time (frame
+    number int32, sub-frame float32, rate numerator and denominator int32), the value count (a
+    byte, 61), then 61 float32: the 52 blendshapes in ARKit's order (Unreal's ``EARFaceBlendShape``;
+    the CSV's column order differs) and head yaw, pitch, roll and the eyes' (``head_eye_rotations``).
+    """
+    device = device_id.encode("utf-8")
+    name = subject.encode("utf-8")
+    values = np.concatenate([np.asarray(face, np.float32)[_ARKIT_ORDER], np.asarray(rotations, np.float32)])
+    return (
+        struct.pack(">Bi", PACKET_VERSION, len(device))
+        + device
+        + struct.pack(">i", len(name))
+        + name
+        + struct.pack(">ifiiB", int(frame), 0.0, int(fps), 1, BLENDSHAPE_COUNT)
+        + values.astype(">f4").tobytes()
+    )

@@ -49,8 +49,9 @@ SELF_JITTER = 0.04
 PARTNER_GRACE = capture.BLOCK_SECONDS + 0.005
 """A partner sample may arrive this long after capture (its block's length plus delivery)."""
 GENERATION_MARGIN = 0.002
-RING_SPARE = 0.25
-"""Ring room beyond what the look-ahead needs, in seconds."""
+RING_SPARE = 1.0
+"""Ring room beyond what the look-ahead needs, in seconds: what a CPU too busy to run us for a
+while (a second) costs in neither underruns nor overruns."""
 
 
 @dataclasses.dataclass

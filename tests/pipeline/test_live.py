@@ -23,20 +23,20 @@ from convodrive.eval.sync import level_db, mouth_onsets, pair_onsets, speech_ons
 from convodrive.motion.channels import BLENDSHAPE_INDEX
 from convodrive.motion.npz import load_clip
 from tests.conftest import run_cli
-from tests.pulse import MIC, MONITOR, SPEAKER, dialogue_halves, pulse  # noqa: F401 (fixture)
+from tests.pulse import MIC, MONITOR, SPEAKER, dialogue_halves
 
 JAW = BLENDSHAPE_INDEX["jawOpen"]
 FRAME_MS = 1000.0 / 30
 
 
-def _live(pulse, out: Path, *args: str, timeout: float = 120):  # noqa: F811
+def _live(pulse, out: Path, *args: str, timeout: float = 120):
     done = run_cli("live", "--out", str(out), *args, env=pulse.env, timeout=timeout)
     report = json.loads((out / "run_report.json").read_text()) if (out / "run_report.json").exists() else None
     return done, report
 
 
 @pytest.mark.parametrize("latency", ["0.1", "0.3"])
-def test_mouth_opens_when_the_speaker_says_so(pulse, tmp_path: Path, latency: str) -> None:  # noqa: F811
+def test_mouth_opens_when_the_speaker_says_so(pulse, tmp_path: Path, latency: str) -> None:
     """The self voice is played, the speaker's monitor recorded; every mouth opening is within a
     frame of the speech onset heard, also with 300 ms of output latency (which a clock that did
     not read the playback position would show as a 300 ms offset)."""
@@ -101,7 +101,7 @@ def _busy_port() -> tuple[socket.socket, int]:
         (["--backend", "nosuch"], "nosuch"),
     ],
 )
-def test_bad_input_is_one_line(pulse, tmp_path: Path, args: list[str], problem: str) -> None:  # noqa: F811
+def test_bad_input_is_one_line(pulse, tmp_path: Path, args: list[str], problem: str) -> None:
     self_wav, _ = dialogue_halves(tmp_path / "in", seconds=2.0)
     held, busy = _busy_port()
     try:
@@ -117,7 +117,7 @@ def test_bad_input_is_one_line(pulse, tmp_path: Path, args: list[str], problem: 
     assert not (tmp_path / "out" / "run_report.json").exists()
 
 
-def test_list_devices_names_the_sinks(pulse) -> None:  # noqa: F811
+def test_list_devices_names_the_sinks(pulse) -> None:
     done = run_cli("live", "--list-devices", env=pulse.env)
     assert done.returncode == 0, done.stderr
     for name in (SPEAKER, MONITOR, MIC):
@@ -135,7 +135,7 @@ def _connect(port: int, timeout: float = 30.0) -> socket.socket:
             time.sleep(0.05)
 
 
-def test_self_stream_that_stops_mid_sentence(pulse, tmp_path: Path) -> None:  # noqa: F811
+def test_self_stream_that_stops_mid_sentence(pulse, tmp_path: Path) -> None:
     """An agent streams half a sentence over the socket, goes quiet with the connection open, then
     hangs up: the mouth closes soon after the voice stops, and the run goes on to its end."""
     voice = speak("Well, the thing about the robot head is that it", rate=150)
@@ -181,7 +181,7 @@ def test_self_stream_that_stops_mid_sentence(pulse, tmp_path: Path) -> None:  # 
     assert np.sum(level_db(heard, 16000) > -35) * 0.01 == pytest.approx(1.3, abs=0.4), "the half sentence was played"
 
 
-def test_microphone_that_disappears(pulse, tmp_path: Path) -> None:  # noqa: F811
+def test_microphone_that_disappears(pulse, tmp_path: Path) -> None:
     """The partner talks into a microphone that is unplugged mid-run: one line in the report, the
     run goes on to its end with a silent partner."""
     words = speak("Yes, I saw it yesterday, and it looked great.", voice="en-us+f3", rate=170)

@@ -13,10 +13,11 @@ A chunk is everything both voices have up to now, so the generator never waits l
 partner's latest block. Partner audio that has not arrived ``grace`` seconds after it was captured
 (a late callback, a microphone that went away) becomes silence, so the clock never waits either.
 
-How late audio arrives depends on the device: an audio server may hold a microphone's blocks for
-tens of milliseconds, or 200 ms for an idle monitor. So ``grace`` (and with it the partner delay)
-rises to cover the 90th percentile of recent arrival ages, once past the start-up second where
-servers deliver erratically; it never falls, so the partner's time line moves at most a few times.
+How late audio arrives depends on the device and the load: an audio server may hold a
+microphone's blocks for tens of milliseconds, or 200 ms for an idle monitor. So ``grace`` (and
+with it the partner delay) rises at once to cover the 90th percentile of recent arrival ages, once
+past the start-up second where servers deliver erratically, and falls back 5 ms at a time when
+the last ``DECAY_SECONDS`` needed less; each change moves the partner's time line (a resync).
 """
 
 from __future__ import annotations
@@ -39,9 +40,11 @@ RESYNC_SECONDS = 0.01
 POLL_SECONDS = 0.002
 SETTLE_SECONDS = 1.0
 """Arrival ages in the input's first second do not move the partner delay (start-up bursts)."""
-AGE_WINDOW = 100
+AGE_WINDOW = 200
 GRACE_MARGIN = 0.005
 MAX_GRACE = 1.0
+DECAY_SECONDS = 10.0
+STEP = 0.005
 
 
 class LiveAudio:
@@ -69,8 +72,10 @@ class LiveAudio:
         self.partner_delay = partner_delay
         self.grace = grace
         self.initial_delay = partner_delay
+        self.base_grace = grace
         self._ages: collections.deque[float] = collections.deque(maxlen=AGE_WINDOW)
         self._first_block: float | None = None
+        self._changed = 0.0
         self.stop_at = None if stop_at is None else int(round(stop_at * ANALYSIS_RATE))
         self.partner_line = Timeline()
         self.partner_line.fill_to(self._samples(partner_delay))  # nothing was captured before time 0
@@ -79,6 +84,7 @@ class LiveAudio:
         self.age_ms = Histogram()
         """From capturing a block's first sample to handing the block on."""
         self.resyncs = 0
+        self.delay_changes = 0
         self.late_samples = 0
         self.dropped_early = 0
         self.events: list[dict[str, Any]] = []
@@ -141,7 +147,7 @@ class LiveAudio:
         self._fill_late()
 
     def _note_age(self, age: float) -> None:
-        """Raise ``grace`` (and the partner delay) when blocks keep arriving later than it allows."""
+        """Move ``grace`` (and the partner delay) to fit how late blocks have been arriving."""
         self.age_ms.add(1000.0 * age)
         now = time.monotonic()
         if self._first_block is None:
@@ -153,13 +159,19 @@ class LiveAudio:
             return
         needed = min(float(np.percentile(self._ages, 90)) + GRACE_MARGIN, MAX_GRACE)
         if needed > self.grace:
-            raise_by = math.ceil((needed - self.grace) * 200) / 200  # in 5 ms steps
-            self.grace += raise_by
-            self.partner_delay += raise_by
-            self._event(
-                f"partner audio arrives up to {1000 * needed:.0f} ms after capture: "
-                f"partner delay raised to {1000 * self.partner_delay:.0f} ms"
-            )
+            self._set_grace(self.grace + math.ceil((needed - self.grace) / STEP) * STEP, needed, now)
+        elif now - self._changed > DECAY_SECONDS and self.grace - STEP >= max(needed, self.base_grace) - 1e-9:
+            self._set_grace(self.grace - STEP, needed, now)
+
+    def _set_grace(self, grace: float, needed: float, now: float) -> None:
+        self.partner_delay += grace - self.grace
+        self.grace = grace
+        self._changed = now
+        self.delay_changes += 1
+        self._event(
+            f"partner audio arrives up to {1000 * needed:.0f} ms after capture: "
+            f"partner delay now {1000 * self.partner_delay:.0f} ms"
+        )
 
     def _place(self, data: np.ndarray, captured: float, target: int) -> None:
         line = self.partner_line
@@ -213,6 +225,7 @@ class LiveAudio:
         return {
             "partner_delay_ms": round(1000.0 * self.partner_delay, 1),
             "initial_partner_delay_ms": round(1000.0 * self.initial_delay, 1),
+            "partner_delay_changes": self.delay_changes,
             "capture_to_available_ms": self.age_ms.summary(),
             "resyncs": self.resyncs,
             "late_ms": round(1000.0 * self.late_samples / ANALYSIS_RATE, 1),

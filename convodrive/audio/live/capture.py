@@ -27,8 +27,8 @@ from convodrive.audio.resample import StreamResampler
 from convodrive.audio.source import ANALYSIS_RATE, AudioSource, ChannelMap
 from convodrive.plumbing.errors import UserError
 
-BLOCK_SECONDS = 0.01
-"""Capture block: 10 ms."""
+BLOCK_SECONDS = 0.005
+"""Capture block: 5 ms (a sample waits at most this long for its block to be handed over)."""
 LOST_SECONDS = 0.5
 """A microphone silent (no callbacks at all) for this long has gone away."""
 START_SECONDS = 5.0
@@ -85,7 +85,7 @@ class MicrophoneInput(PartnerInput):
     """A capture device through PortAudio; the callback only copies into a ring."""
 
     def __init__(
-        self, device: Device, ring_seconds: float, latency: float | str = 0.05, keep_timing: bool = False
+        self, device: Device, ring_seconds: float, latency: float | str = 0.02, keep_timing: bool = False
     ) -> None:
         sd = portaudio()
         self.device = device

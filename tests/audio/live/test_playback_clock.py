@@ -10,10 +10,10 @@ from convodrive.audio.live.capture import MicrophoneInput, Recording
 from convodrive.audio.live.devices import find_device
 from convodrive.audio.live.playback import Playback
 from convodrive.scheduler import PlaybackClock
-from tests.pulse import MONITOR, SPEAKER, pulse  # noqa: F401 (fixture)
+from tests.pulse import MONITOR, SPEAKER
 
 
-def test_clock_reads_where_the_speaker_is(pulse, monkeypatch) -> None:  # noqa: F811
+def test_clock_reads_where_the_speaker_is(pulse, monkeypatch) -> None:
     for key, value in pulse.env.items():
         monkeypatch.setenv(key, value)
     rate = 16000

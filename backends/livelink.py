@@ -1,0 +1,70 @@
+"""Backend ``livelink``: the face and head as Live Link Face UDP packets, for Unreal Engine.
+
+Unreal's Live Link plugin (with the Live Link Face source) lists the sender as a subject by its
+``subject`` name and drives a MetaHuman or any ARKit face rig with it: 52 blendshapes plus head
+and eye rotations in radians, one datagram a frame (``convodrive.motion.livelink.encode_packet``).
+UDP needs no connection, so a listener may come and go; sending never waits for one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import socket
+from collections.abc import Mapping
+from typing import Any
+
+from convodrive.backends.base import Backend, Session
+from convodrive.backends.net import open_udp
+from convodrive.motion.livelink import UDP_PORT, encode_packet, head_eye_rotations
+from convodrive.motion.targets import TargetFrame, TargetSpec
+from convodrive.plugins.options import PluginOptions, option
+
+
+@dataclasses.dataclass(frozen=True)
+class LivelinkOptions(PluginOptions):
+    host: str = option("127.0.0.1", help="Where Unreal listens (its machine's address)")
+    port: int = option(UDP_PORT, low=1, high=65535, help="Its Live Link Face port")
+    subject: str = option("convodrive", help="Subject name Unreal lists the face under")
+    device_id: str = option("convodrive", help="Device id sent with every packet")
+
+
+class LivelinkBackend(Backend):
+    name = "livelink"
+    description = "Face and head as Live Link Face UDP packets (Unreal Engine's Live Link, MetaHumans)"
+    realtime = True
+    Options = LivelinkOptions
+    options: LivelinkOptions
+
+    def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
+        super().__init__(options)
+        self._socket: socket.socket | None = None
+        self._address: tuple[Any, ...] = ()
+        self.sent = 0
+        self.bytes = 0
+
+    def open(self, spec: TargetSpec, session: Session) -> None:
+        super().open(spec, session)
+        self._socket, self._address = open_udp(self.name, self.options.host, self.options.port)
+
+    def send(self, frame: TargetFrame) -> None:
+        assert self._socket is not None
+        motion = frame.motion
+        packet = encode_packet(
+            self.options.device_id,
+            self.options.subject,
+            frame.index,
+            motion.face,
+            head_eye_rotations(motion.pose[None])[0],
+            fps=int(round(self.session.fps if self.session else 30)),
+        )
+        self._socket.sendto(packet, self._address)
+        self.sent += 1
+        self.bytes += len(packet)
+
+    def close(self) -> None:
+        if self._socket is not None:
+            self._socket.close()
+
+    def report(self) -> dict[str, Any]:
+        return {"destination": f"{self.options.host}:{self.options.port}", "packets": self.sent, "bytes": self.bytes}
+
