@@ -67,4 +67,3 @@ class LivelinkBackend(Backend):
 
     def report(self) -> dict[str, Any]:
         return {"destination": f"{self.options.host}:{self.options.port}", "packets": self.sent, "bytes": self.bytes}
-
