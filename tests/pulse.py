@@ -129,11 +129,13 @@ def pulse(tmp_path: Path) -> Iterator[PulseRig]:
         rig.stop()
 
 
-def dialogue_halves(out: Path, seconds: float | None = None) -> tuple[Path, Path]:
-    """The bundled dialogue's self and partner channels as two mono files (optionally cut)."""
+def dialogue_halves(out: Path, seconds: float | None = None, lead_in: float = 0.0) -> tuple[Path, Path]:
+    """The bundled dialogue's self and partner channels as two mono files (optionally cut, and
+    after ``lead_in`` seconds of silence)."""
     data, rate = sf.read(bundled_dialogue(), dtype="float32")
     if seconds is not None:
         data = data[: int(seconds * rate)]
+    data = np.concatenate([np.zeros((int(lead_in * rate), 2), np.float32), data])
     out.mkdir(parents=True, exist_ok=True)
     paths = out / "SELF.wav", out / "PARTNER.wav"
     for channel, path in enumerate(paths):

@@ -15,7 +15,7 @@ import dataclasses
 
 import numpy as np
 
-HOP_SECONDS = 0.01
+HOP_SECONDS = 0.005
 MIN_SILENCE_SECONDS = 0.15
 """A speech onset follows at least this much silence (so syllables are not onsets)."""
 MOUTH_OPEN = 0.1

@@ -136,6 +136,7 @@ def live(request: LiveRequest, on_start: Callable[[], None] | None = None) -> Dr
         "live": run.report(),
         "outputs": [str(p) for p in outputs],
     }
+    context["summary_lines"] = summary_lines(context["live"])
     report = build_report(result, context, failed_at_open)
     report_path, summary_path = write_report(report, out_dir)
     return DriveResult(report, report_path, summary_path, outputs)
@@ -391,3 +392,41 @@ class _LiveRun:
             "sync_error_ms": sync_error,
             "events": events,
         }
+
+
+def summary_lines(live: dict[str, Any], max_events: int = 12) -> list[str]:
+    """The live figures a user looks at first, for the run's printed summary."""
+    lines = []
+    playback, voice, partner = live["playback"], live["self_voice"], live["partner"]
+    if playback is not None:
+        lines.append(
+            f"live: the clock is the speaker {playback['device']!r} (output latency {playback['output_latency_ms']:.0f} ms); "
+            f"self voice {voice['voice_seconds']:.1f} s queued {voice['lead_ms']:.0f} ms ahead, "
+            f"{playback['underruns']} underruns, {voice['stalls']} stalls"
+        )
+    else:
+        lines.append("live: no self voice; the clock is the monotonic clock")
+    heard = live["audio_motion_offset"]
+    if heard.get("measured") and heard.get("median_ms") is not None:
+        lines.append(
+            f"audio–motion offset at the monitor: median {heard['median_ms']:+.1f} ms over {heard['pairs']} speech onsets "
+            f"({heard['min_ms']:+.1f} to {heard['max_ms']:+.1f} ms); the generator's own "
+            f"{live['generator_offset']['median_ms']:+.1f} ms, so the clock's error {live['sync_error_ms']:+.1f} ms"
+        )
+    elif heard.get("measured"):
+        lines.append("audio–motion offset: no speech onsets to measure it by")
+    latency = live["latency_ms"]
+    sent = ", ".join(
+        f"{name} {h['p50']:.0f}/{h['p99']:.0f} ms" for name, h in latency["partner_capture_to_sent"].items() if h
+    )
+    lines.append(
+        f"partner {partner['source']}: placed {latency['partner_delay']:.0f} ms after capture"
+        + (f"; capture to body p50/p99: {sent}" if sent else "")
+        + (f"; {partner['overruns']} overruns" if partner.get("overruns") else "")
+    )
+    for event in live["events"][:max_events]:
+        when = f"{event['time']:8.2f} s" if event["time"] is not None else "         "
+        lines.append(f"  {when}  {event['event']}")
+    if len(live["events"]) > max_events:
+        lines.append(f"  … {len(live['events']) - max_events} more events in run_report.json")
+    return lines

@@ -130,6 +130,7 @@ def summarize(report: dict[str, Any]) -> str:
             f"  {name:<10} {state:<9} sent {b.get('frames_sent', 0):>6}  dropped {b.get('frames_dropped', 0):>6}  "
             f"errors {b.get('errors', 0):>4}" + (f"  ({detail})" if detail else "")
         )
+    lines.extend(report.get("summary_lines", []))  # what the kind of run adds (a live run's figures)
     return "\n".join(lines)
 
 

@@ -19,7 +19,7 @@ import pytest
 import soundfile as sf
 
 from convodrive.audio.synth import speak
-from convodrive.eval.sync import level_db, mouth_onsets, pair_onsets, speech_onsets
+from convodrive.eval.sync import HOP_SECONDS, level_db, mouth_onsets, pair_onsets, speech_onsets
 from convodrive.motion.channels import BLENDSHAPE_INDEX
 from convodrive.motion.npz import load_clip
 from tests.conftest import run_cli
@@ -37,10 +37,12 @@ def _live(pulse, out: Path, *args: str, timeout: float = 120):
 
 @pytest.mark.parametrize("latency", ["0.1", "0.3"])
 def test_mouth_opens_when_the_speaker_says_so(pulse, tmp_path: Path, latency: str) -> None:
-    """The self voice is played, the speaker's monitor recorded; every mouth opening is within a
-    frame of the speech onset heard, also with 300 ms of output latency (which a clock that did
-    not read the playback position would show as a 300 ms offset)."""
-    self_wav, partner_wav = dialogue_halves(tmp_path / "in", seconds=10.0)
+    """The self voice is played, the speaker's monitor recorded; mouth openings follow the speech
+    onsets heard within a frame, also with 300 ms of output latency (which a clock that did not
+    read the playback position would show as a 300 ms offset)."""
+    # 1.5 s of silence first: onsets in the stream's first second would test the audio server's
+    # start-up more than the clock.
+    self_wav, partner_wav = dialogue_halves(tmp_path / "in", seconds=10.0, lead_in=1.5)
     out = tmp_path / "out"
     done, report = _live(
         pulse,
@@ -52,14 +54,16 @@ def test_mouth_opens_when_the_speaker_says_so(pulse, tmp_path: Path, latency: st
     assert done.returncode == 0, done.stderr
     live = report["live"]
     assert live["clock"] == "playback"
+    assert live["playback"]["output_latency_ms"] >= 1000.0 * float(latency) - 20.0
     offset = live["audio_motion_offset"]
     assert offset["measured"] and offset["pairs"] >= 3, offset
     assert abs(offset["median_ms"]) <= FRAME_MS, offset
-    assert offset["min_ms"] >= -FRAME_MS - 5 and offset["max_ms"] <= FRAME_MS + 5, offset
+    assert offset["min_ms"] >= -45.0 and offset["max_ms"] <= 45.0, offset  # ITU-R BT.1359: unnoticed
     assert abs(live["sync_error_ms"]) <= 10.0, live
-    assert live["playback"]["output_latency_ms"] >= 1000.0 * float(latency) - 20.0
 
-    # The same figure again from the evidence the run saved, with this test's own arithmetic.
+    # Again from the evidence the run saved, with this test's own arithmetic: each onset heard at
+    # the monitor against the mouth opening sent, less what the generator does on purpose for that
+    # onset (measured on the audio it was given, against frame times k/30), is the clock's error.
     evidence = np.load(out / "sync.npz")
     monitor = evidence["monitor"].astype(np.float32) / 32768.0
     rate = int(evidence["monitor_rate"])
@@ -68,16 +72,20 @@ def test_mouth_opens_when_the_speaker_says_so(pulse, tmp_path: Path, latency: st
     jaw = load_clip(out / "motion.npz").face[:, JAW]
     assert np.allclose(jaw[: len(evidence["jaw_open"])], evidence["jaw_open"], atol=1e-6)
     shown = evidence["frame_dispatch_mono"][mouth_onsets(evidence["jaw_open"])]
-    again = pair_onsets(heard, shown).summary()
-    assert again["pairs"] == offset["pairs"]
-    assert again["median_ms"] == pytest.approx(offset["median_ms"], abs=3.0)
+    live_pairs = pair_onsets(heard, shown)
+    assert live_pairs.summary()["median_ms"] == pytest.approx(offset["median_ms"], abs=3.0)
+    own = pair_onsets(speech_onsets(evidence["self_level_db"]), mouth_onsets(evidence["jaw_open"]) / 30)
+    assert len(own.offsets_ms) == len(live_pairs.offsets_ms) >= 3
+    clock_error = live_pairs.offsets_ms - own.offsets_ms
+    assert np.all(np.abs(clock_error) <= 12.0), clock_error
 
     # The motion covers the whole voice, and the report carries the latency figures.
-    assert report["frames"] == pytest.approx(10.0 * 30, abs=15)
+    assert report["frames"] == pytest.approx(11.5 * 30, abs=15)
     latency_ms = live["latency_ms"]
     assert latency_ms["self_lead"] > 1000.0 * 4 / 30
     assert latency_ms["partner_capture_to_sent"]["record"]["count"] > 200
     assert report["backends"]["record"]["dispatch_to_sent_ms"]["count"] == report["frames"]
+    assert "audio–motion offset at the monitor" in done.stdout
 
 
 def _busy_port() -> tuple[socket.socket, int]:
@@ -169,7 +177,7 @@ def test_self_stream_that_stops_mid_sentence(pulse, tmp_path: Path) -> None:
     report = json.loads((out / "run_report.json").read_text())
     events = [e["event"] for e in report["live"]["events"]]
     assert any("connected" in e for e in events) and "speaker hung up" in events, events
-    assert any("stalled mid-stream" in e for e in events), events
+    assert any("voice ran out while its speaker is connected" in e for e in events), events
     assert report["frames"] == pytest.approx(6 * 30, abs=10)
     jaw = load_clip(out / "motion.npz").face[:, JAW]
     open_frames = np.flatnonzero(jaw > 0.1)
@@ -178,7 +186,9 @@ def test_self_stream_that_stops_mid_sentence(pulse, tmp_path: Path) -> None:
     assert spoken <= 1.3 + 0.3, spoken  # the mouth stopped with the voice, not later
     assert np.all(jaw[open_frames[-1] + 1 :] < 0.1) and len(jaw) - open_frames[-1] > 60
     heard = np.load(out / "sync.npz")["monitor"].astype(np.float32) / 32768
-    assert np.sum(level_db(heard, 16000) > -35) * 0.01 == pytest.approx(1.3, abs=0.4), "the half sentence was played"
+    assert np.sum(level_db(heard, 16000) > -35) * HOP_SECONDS == pytest.approx(1.3, abs=0.4), (
+        "the half sentence was played"
+    )
 
 
 def test_microphone_that_disappears(pulse, tmp_path: Path) -> None:

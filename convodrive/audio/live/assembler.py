@@ -229,6 +229,7 @@ class LiveAudio:
             "capture_to_available_ms": self.age_ms.summary(),
             "resyncs": self.resyncs,
             "late_ms": round(1000.0 * self.late_samples / ANALYSIS_RATE, 1),
+            "before_start_ms": round(1000.0 * self.dropped_early / ANALYSIS_RATE, 1),
             "lost": self._lost_reason,
             "events": self.events,
         }

@@ -247,7 +247,9 @@ class SelfVoiceFeeder(threading.Thread):
         self.stalls = 0
         self.stalled_samples = 0
         self._stalled = False
-        self._last_voice = -1e9
+        self._stall_len = 0
+        self._voice_last = False
+        """The last thing queued was voice (not silence)."""
         self.events: list[dict[str, Any]] = []
         self.error: BaseException | None = None
 
@@ -295,7 +297,7 @@ class SelfVoiceFeeder(threading.Thread):
         if self._stalled:
             self._stalled = False
             self._event(f"self voice resumed after {1000.0 * self._stall_len / self.rate:.0f} ms of silence")
-        self._last_voice = time.monotonic()
+        self._voice_last = True
         self.voice_samples += len(data)
         self._commit(data)
 
@@ -312,14 +314,16 @@ class SelfVoiceFeeder(threading.Thread):
         if level >= self.low_water:
             return
         fill = self.high_water - level
-        if stall and self.source.streaming() and time.monotonic() - self._last_voice < 0.5:
-            if not self._stalled:
-                self._stalled = True
-                self._stall_len = 0
-                self.stalls += 1
-                self._event("self voice stalled mid-stream: queuing silence")
+        if self._stalled and not self.source.streaming():
+            self._stalled = False  # the speaker hung up: this silence is nobody's stall
+        if stall and self.source.streaming() and self._voice_last:
+            self.stalls += 1  # the speaker is connected but its voice ran out, mid-sentence or not
+            self._stalled, self._stall_len = True, 0
+            self._event("self voice ran out while its speaker is connected: silence until more comes")
+        if self._stalled:
             self._stall_len += fill
             self.stalled_samples += fill
+        self._voice_last = False
         self._commit(np.zeros(fill, np.float32))
 
     def _commit(self, new: np.ndarray) -> None:

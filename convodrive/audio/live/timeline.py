@@ -10,11 +10,11 @@ import numpy as np
 
 
 class Timeline:
-    """Appended by one thread, taken in order by another; ``wait`` lets the taker sleep until more."""
+    """Appended by one thread, taken in order by another."""
 
     def __init__(self) -> None:
         self._parts: collections.deque[np.ndarray] = collections.deque()
-        self._cond = threading.Condition()
+        self._lock = threading.Lock()
         self.taken = 0
         """Position of the first sample not yet taken."""
         self.end = 0
@@ -24,10 +24,9 @@ class Timeline:
         data = np.asarray(samples, np.float32).reshape(-1)
         if not len(data):
             return
-        with self._cond:
+        with self._lock:
             self._parts.append(data.copy())
             self.end += len(data)
-            self._cond.notify_all()
 
     def fill_to(self, position: int) -> int:
         """Append silence up to ``position``; return how many samples were filled."""
@@ -38,7 +37,7 @@ class Timeline:
 
     def take(self, stop: int) -> np.ndarray:
         """Remove and return the samples from ``taken`` up to ``stop`` (clipped to ``end``)."""
-        with self._cond:
+        with self._lock:
             n = max(min(int(stop), self.end) - self.taken, 0)
             out = np.zeros(n, np.float32)
             filled = 0
@@ -53,8 +52,3 @@ class Timeline:
                     self._parts[0] = part[k:]
             self.taken += n
             return out
-
-    def wait(self, beyond: int, timeout: float) -> bool:
-        """Sleep until ``end > beyond`` or ``timeout`` seconds pass; True if it grew beyond."""
-        with self._cond:
-            return self._cond.wait_for(lambda: self.end > beyond, timeout)
