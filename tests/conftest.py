@@ -4,7 +4,7 @@ what a test needs beyond the core install.
 A core-only install (``pip install -e . pytest pytest-timeout hypothesis``) runs its share of the
 suite. A test that needs an extra or a system tool carries a marker named in ``NEEDS`` below (and
 registered in pyproject.toml: mujoco, gymnasium, gl, ffmpeg, hardware, pocketsphinx, espeak, xvfb,
-bvh_reader, import_linter, build_tools, onnxruntime, torch); where the machine lacks it the test is
+bvh_reader, import_linter, build_tools, onnxruntime, torch, live, pulseaudio, chromium); where the machine lacks it the test is
 skipped with the reason and what installs it. CI installs everything and sets
 ``CONVODRIVE_TESTS_NEED_ALL=1``, which turns such a skip into a failure.
 
@@ -49,6 +49,13 @@ NEEDS: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
     "build_tools": (("wheel",), (), "pip install -U setuptools wheel, as scripts/setup.sh does"),
     "onnxruntime": (("onnxruntime",), (), "pip install 'convodrive[models]'"),
     "torch": (("torch",), (), "pip install 'convodrive[models]'"),
+    "live": (("sounddevice", "websockets", "pythonosc"), (), "pip install 'convodrive[live]'"),
+    "pulseaudio": (
+        ("sounddevice",),
+        ("pulseaudio", "pactl", "paplay"),
+        "apt install pulseaudio pulseaudio-utils libportaudio2 libasound2-plugins (scripts/setup.sh --dev)",
+    ),
+    "chromium": ((), ("chromium",), "apt install chromium (scripts/setup.sh --dev)"),
 }
 NEED_ALL = os.environ.get("CONVODRIVE_TESTS_NEED_ALL") == "1"
 

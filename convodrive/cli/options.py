@@ -100,7 +100,12 @@ def add_motion_options(p: argparse.ArgumentParser) -> None:
         help="output folder (default: ./convodrive-out)",
     )
     p.add_argument("--seed", type=int, default=0, help="random seed: the same seed gives the same motion (default: 0)")
-    p.add_argument("--motion", type=Path, metavar="FILE", help="motion file for the replay generator (.npz, .bvh or Live Link .csv)")
+    p.add_argument(
+        "--motion",
+        type=Path,
+        metavar="FILE",
+        help="motion file for the replay generator (.npz, .bvh or Live Link .csv)",
+    )
     p.add_argument(
         "-G",
         "--generator-option",

@@ -6,12 +6,15 @@ import struct
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from convodrive.motion.channels import ARKIT_NAMES, BLENDSHAPE_INDEX
 from convodrive.motion.livelink import head_eye_rotations
 from convodrive.motion.npz import load_clip
 from tests.backends.udp_listener import UdpListener
 from tests.conftest import run_cli
+
+pytestmark = [pytest.mark.espeak]
 
 
 def decode(packet: bytes) -> dict:

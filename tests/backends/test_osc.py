@@ -15,6 +15,8 @@ from convodrive.motion.skeleton import JOINT_NAMES
 from tests.backends.udp_listener import UdpListener
 from tests.conftest import run_cli
 
+pytestmark = [pytest.mark.live, pytest.mark.espeak]
+
 
 def _string(data: bytes, pos: int) -> tuple[str, int]:
     end = data.index(b"\0", pos)

@@ -25,6 +25,8 @@ from convodrive.motion.npz import load_clip
 from tests.conftest import run_cli
 from tests.pulse import MIC, MONITOR, SPEAKER, dialogue_halves
 
+pytestmark = [pytest.mark.pulseaudio, pytest.mark.live, pytest.mark.espeak]
+
 JAW = BLENDSHAPE_INDEX["jawOpen"]
 FRAME_MS = 1000.0 / 30
 

@@ -5,12 +5,15 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 
 from convodrive.audio.live.capture import MicrophoneInput, Recording
 from convodrive.audio.live.devices import find_device
 from convodrive.audio.live.playback import Playback
 from convodrive.scheduler import PlaybackClock
 from tests.pulse import MONITOR, SPEAKER
+
+pytestmark = [pytest.mark.pulseaudio, pytest.mark.live]
 
 
 def test_clock_reads_where_the_speaker_is(pulse, monkeypatch) -> None:
