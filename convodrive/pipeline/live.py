@@ -125,7 +125,8 @@ def live(request: LiveRequest, on_start: Callable[[], None] | None = None) -> Dr
         run.close()
     outputs = [p for r in routes for p in safe_outputs(r.backend)]
     outputs += run.write_evidence(out_dir)
-    context = {
+    live_figures = run.report()
+    context: dict[str, Any] = {
         "generator": {
             "name": request.generator,
             "seed": request.seed,
@@ -133,10 +134,10 @@ def live(request: LiveRequest, on_start: Callable[[], None] | None = None) -> Dr
             "options": gen_options.as_dict(),
         },
         "config": str(request.config) if request.config else None,
-        "live": run.report(),
+        "live": live_figures,
         "outputs": [str(p) for p in outputs],
+        "summary_lines": summary_lines(live_figures),
     }
-    context["summary_lines"] = summary_lines(context["live"])
     report = build_report(result, context, failed_at_open)
     report_path, summary_path = write_report(report, out_dir)
     return DriveResult(report, report_path, summary_path, outputs)
