@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -229,3 +230,25 @@ def test_microphone_that_disappears(pulse, tmp_path: Path) -> None:
     lost_frame = int(lost[0]["time"] * 30)
     assert vad[:lost_frame].max() > 0.5, "the partner was heard while the microphone worked"
     assert np.all(vad[lost_frame + 30 :] == 0), "and is silent after it went away (delay and hangover aside)"
+
+
+def test_ctrl_c_ends_a_run_that_listens_forever(pulse, tmp_path: Path) -> None:
+    """A microphone never ends, so Ctrl-C does: every backend closes and the report is written."""
+    out = tmp_path / "out"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "convodrive.cli.main", "live", "--partner", MIC, "--self", "none",
+         "--backend", "record", "--out", str(out)],
+        env={**os.environ, **pulse.env}, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert run.stderr is not None and "live at 30 fps" in run.stderr.readline()
+        time.sleep(2.0)
+        run.send_signal(signal.SIGINT)
+        stdout, stderr = run.communicate(timeout=30)
+    finally:
+        if run.poll() is None:
+            run.kill()
+    assert run.returncode == 130, stderr
+    report = json.loads((out / "run_report.json").read_text())
+    assert report["interrupted"] and report["live"]["clock"] == "monotonic"
+    assert report["frames"] >= 30 and (out / "motion.npz").exists()
