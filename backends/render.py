@@ -1,11 +1,13 @@
 """Backend ``render``: the mesh avatar filmed headless into an mp4 with the session's audio.
 
 It consumes canonical motion (``frame.takes``: one take, or K takes of the same audio laid out
-side by side), poses the procedural avatar, renders offscreen (EGL, else OSMesa) and writes
-``avatar.mp4`` (H.264, yuv420p, 30 fps, audio muxed) plus ``avatar_contact.png``, a contact
-sheet of evenly spaced frames. With ``window: true`` and a display it also shows the frames live.
+side by side), poses the built-in mannequin or the user's glTF/VRM avatar, renders offscreen
+(EGL, else OSMesa) and writes ``avatar.mp4`` (H.264, yuv420p, 30 fps, audio muxed) plus
+``avatar_contact.png``, a contact sheet of evenly spaced frames labelled with who is talking.
+With ``window: true`` and a display it also shows the frames live.
 
-Options: ``RenderOptions`` below (``convodrive plugins render`` lists them).
+Options: ``RenderOptions`` below (``convodrive plugins render`` lists them); ``avatar`` names a
+.glb/.gltf/.vrm avatar (or a YAML name map for one) to show instead of the mannequin.
 """
 
 from __future__ import annotations
@@ -21,7 +23,9 @@ from typing import Any
 import numpy as np
 
 from convodrive.backends.avatar.render_scene import CAMERAS, AvatarRenderer, grid_shape, parse_resolution
+from convodrive.backends.avatar.rig import Rig
 from convodrive.backends.base import Backend, Session
+from convodrive.motion.channels import ConversationState
 from convodrive.motion.targets import TargetFrame, TargetSpec
 from convodrive.plugins.options import PluginOptions, check_file_name, option
 from convodrive.plumbing.atomic import atomic_path
@@ -34,6 +38,13 @@ log = logging.getLogger(__name__)
 CONTACT_CELLS = 12
 CONTACT_COLUMNS = 4
 THUMB_WIDTH = 320
+STATE_COLORS = {
+    ConversationState.SPEAKING: (30, 130, 60),
+    ConversationState.LISTENING: (40, 90, 170),
+    ConversationState.OVERLAP: (190, 110, 20),
+    ConversationState.SILENCE: (90, 90, 90),
+}
+"""Label colours on the contact sheet: who is talking in that frame."""
 
 
 class ContactSheet:
@@ -46,9 +57,9 @@ class ContactSheet:
     def __init__(self, cells: int = CONTACT_CELLS) -> None:
         self.cells = cells
         self.stride = 1
-        self.kept: list[tuple[int, np.ndarray]] = []
+        self.kept: list[tuple[int, np.ndarray, ConversationState]] = []
 
-    def offer(self, index: int, image: np.ndarray) -> None:
+    def offer(self, index: int, image: np.ndarray, state: ConversationState = ConversationState.SILENCE) -> None:
         if index % self.stride:
             return
         from PIL import Image
@@ -56,7 +67,7 @@ class ContactSheet:
         h, w = image.shape[:2]
         scale = THUMB_WIDTH / w
         thumb = np.asarray(Image.fromarray(image).resize((THUMB_WIDTH, max(2, round(h * scale))), Image.BILINEAR))
-        self.kept.append((index, thumb))
+        self.kept.append((index, thumb, ConversationState(state)))
         if len(self.kept) > 2 * self.cells:
             self.kept = self.kept[::2]
             self.stride *= 2
@@ -74,12 +85,16 @@ class ContactSheet:
         pad = 6
         sheet = Image.new("RGB", (cols * (tw + pad) + pad, rows * (th + pad) + pad), (32, 34, 38))
         draw = ImageDraw.Draw(sheet)
-        for k, (index, thumb) in enumerate(thumbs):
+        for k, (index, thumb, state) in enumerate(thumbs):
             x, y = pad + (k % cols) * (tw + pad), pad + (k // cols) * (th + pad)
             sheet.paste(Image.fromarray(thumb), (x, y))
             label = f"{index / fps:6.2f} s"
             draw.rectangle((x, y + th - 16, x + 62, y + th), fill=(0, 0, 0))
             draw.text((x + 4, y + th - 14), label, fill=(240, 240, 240))
+            name = state.name.lower()
+            width = 8 + 6 * len(name)
+            draw.rectangle((x + tw - width, y + th - 16, x + tw, y + th), fill=STATE_COLORS[state])
+            draw.text((x + tw - width + 4, y + th - 14), name, fill=(255, 255, 255))
         with atomic_path(path) as tmp:
             sheet.save(tmp, format="PNG")
         return path
@@ -99,6 +114,9 @@ class RenderOptions(PluginOptions):
     )
     antialias: bool = option(False, help="4x multisampling (about 2.5x slower on software GL)")
     window: bool = option(False, help="Also show the frames in a live window when a display exists")
+    avatar: str = option(
+        "", help="A .glb, .gltf or .vrm avatar, or a YAML name map for one; empty for the built-in mannequin"
+    )
 
     def __post_init__(self) -> None:
         try:
@@ -130,6 +148,7 @@ class RenderBackend(Backend):
         self.sheet_name = str(self.options.contact_sheet) if self.options.contact_sheet else None
         self.antialias = self.options.antialias
         self.want_window = self.options.window
+        self.avatar_path = self.options.avatar
         self.window_note = None
         if self.want_window and display_available():
             self.realtime = True  # type: ignore[misc]  # a live window is paced by the wall clock
@@ -137,6 +156,7 @@ class RenderBackend(Backend):
             self.window_note = "window requested but no display (DISPLAY unset): rendering to file only"
             log.warning("render: %s", self.window_note)
         self._renderer: AvatarRenderer | None = None
+        self._rig: Rig | None = None
         self._writer: Any = None
         self._window: Any = None
         self._sheet = ContactSheet()
@@ -148,10 +168,10 @@ class RenderBackend(Backend):
         self._renderer_stats: dict[str, float] = {"frames": 0, "skin_s": 0.0, "gl_s": 0.0}
 
     def open(self, spec: TargetSpec, session: Session) -> None:
-        """Check that headless GL works and build the avatar; the GL context itself is made on the
-        first ``send``, because an EGL context belongs to the thread that made it current and the
-        scheduler opens backends on one thread and feeds them on another."""
-        from convodrive.backends.avatar.avatar_mesh import build_avatar
+        """Check that headless GL works and load the avatar (a bad avatar file fails here, before
+        any frame); the GL context itself is made on the first ``send``, because an EGL context
+        belongs to the thread that made it current and the scheduler opens backends on one thread
+        and feeds them on another."""
         from convodrive.backends.avatar.pyrender_gl import select_platform
 
         super().open(spec, session)
@@ -165,10 +185,17 @@ class RenderBackend(Backend):
         self.out_dir = Path(session.out_dir)
         self.video_path = self.out_dir / self.filename
         select_platform()
-        build_avatar()
+        if self.avatar_path:
+            from convodrive.backends.avatar.gltf_read import load_avatar
+
+            self._rig = load_avatar(Path(self.avatar_path).expanduser())
+        else:
+            from convodrive.backends.avatar.mannequin import build_mannequin
+
+            self._rig = build_mannequin()
 
     def _start(self) -> None:
-        self._renderer = AvatarRenderer(self.width, self.height, self.camera, antialias=self.antialias)
+        self._renderer = AvatarRenderer(self.width, self.height, self.camera, antialias=self.antialias, rig=self._rig)
         if self.realtime:
             try:
                 from convodrive.backends.avatar.live_window import LiveWindow
@@ -206,7 +233,7 @@ class RenderBackend(Backend):
             takes = (tuple(takes) + (takes[0],) * self._takes)[: self._takes]
         image = self._renderer.render_takes(takes)
         self._writer.append(image)
-        self._sheet.offer(frame.index, image)
+        self._sheet.offer(frame.index, image, takes[0].state)
         if self._window is not None:
             try:
                 self._window.show(image)
@@ -266,6 +293,7 @@ class RenderBackend(Backend):
             "resolution": [cols * self.width, rows * self.height],
             "gl_platform": select_platform() if self.session else None,
             "antialias": self.antialias,
+            "avatar": self.avatar_path or "mannequin",
             "render_fps": round(self._frames / self._wall, 2) if self._wall else None,
             "skin_ms_per_take": round(1000 * stats["skin_s"] / renders, 3),
             "gl_ms_per_take": round(1000 * stats["gl_s"] / renders, 3),

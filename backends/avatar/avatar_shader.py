@@ -2,10 +2,13 @@
 
 On a software rasteriser (llvmpipe, 2 cores) fragment shading dominates the frame. pyrender's
 metallic-roughness shader evaluates GGX, Smith and Fresnel terms per light and inverts a 4x4
-matrix per vertex; this one does wrapped Lambert (a cheap stand-in for skin's soft terminator)
-plus a Blinn-Phong highlight sized by the material's roughness, which is what a mannequin needs.
-It keeps pyrender's uniform names, so pyrender's renderer drives it unchanged. Colours follow
-pyrender's convention (light x vertex colour, then gamma 2.2), so the palette looks the same.
+matrix per vertex; this one does wrapped Lambert, with a per-channel wrap where a material scatters
+(skin: red light reaches past the shadow line, which warms the terminator as real skin does), a
+Blinn-Phong highlight sized by the roughness and brightened at grazing angles (wet eyes and lips
+glint), a base colour texture for avatars that bring one, and alpha-masked texels. It keeps
+pyrender's uniform names, so pyrender's renderer drives it unchanged; two slots carry our own
+parameters (see ``AvatarRenderer._primitive``). Colours follow pyrender's convention (light x
+vertex colour, then gamma 2.2).
 """
 
 from __future__ import annotations
@@ -19,6 +22,9 @@ layout(location = 0) in vec3 position;
 #ifdef NORMAL_LOC
 layout(location = NORMAL_LOC) in vec3 normal;
 #endif
+#ifdef TEXCOORD_0_LOC
+layout(location = TEXCOORD_0_LOC) in vec2 texcoord_0;
+#endif
 #ifdef COLOR_0_LOC
 layout(location = COLOR_0_LOC) in vec4 color_0;
 #endif
@@ -28,6 +34,7 @@ uniform mat4 V;
 uniform mat4 P;
 out vec3 frag_position;
 out vec3 frag_normal;
+out vec2 uv_0;
 out vec4 frag_color_in;
 void main()
 {
@@ -40,6 +47,11 @@ void main()
 #else
     frag_normal = vec3(0.0, 0.0, 1.0);
 #endif
+#ifdef TEXCOORD_0_LOC
+    uv_0 = texcoord_0;
+#else
+    uv_0 = vec2(0.0);
+#endif
 #ifdef COLOR_0_LOC
     frag_color_in = color_0;
 #else
@@ -50,7 +62,15 @@ void main()
 
 FRAGMENT = """#version 330 core
 struct DirectionalLight { vec3 color; float intensity; vec3 direction; };
-struct Material { vec3 emissive_factor; vec4 base_color_factor; float metallic_factor; float roughness_factor; };
+struct Material {
+    vec3 emissive_factor;  // x: alpha cutoff of a masked texture (negative: none)
+    vec4 base_color_factor;
+    float metallic_factor;  // our skin scatter, 0..1 (this shader draws no metals)
+    float roughness_factor;
+#ifdef HAS_BASE_COLOR_TEX
+    sampler2D base_color_texture;
+#endif
+};
 uniform Material material;
 uniform DirectionalLight directional_lights[MAX_DIRECTIONAL_LIGHTS];
 uniform int n_directional_lights;
@@ -58,26 +78,47 @@ uniform vec3 cam_pos;
 uniform vec3 ambient_light;
 in vec3 frag_position;
 in vec3 frag_normal;
+in vec2 uv_0;
 in vec4 frag_color_in;
 out vec4 frag_color;
 const float INV_PI = 0.31830988618;
+// Skin lets red light travel under the surface: past the shadow line red fades last, blue first.
+const vec3 SCATTER_WRAP = vec3(0.45, 0.25, 0.2);
+const vec3 SCATTER_TINT = vec3(1.0, 0.9, 0.86);
 void main()
 {
+    vec4 base = material.base_color_factor * frag_color_in;
+#ifdef HAS_BASE_COLOR_TEX
+    vec4 texel = texture(material.base_color_texture, uv_0);
+    if (material.emissive_factor.x >= 0.0 && texel.a < material.emissive_factor.x) discard;
+    base *= vec4(pow(texel.rgb, vec3(2.2)), texel.a);
+#endif
     vec3 n = normalize(frag_normal);
     vec3 v = normalize(cam_pos - frag_position);
+    if (dot(n, v) < 0.0 && !gl_FrontFacing) n = -n;  // the far side of a double-sided surface
+    float scatter = clamp(material.metallic_factor, 0.0, 1.0);
     float rough = clamp(material.roughness_factor, 0.05, 1.0);
     float shininess = 2.0 / (rough * rough * rough * rough) - 1.5;
     float spec_scale = 0.04 * (shininess + 8.0) * 0.125 * INV_PI;
-    vec3 light = ambient_light * (0.75 + 0.25 * n.y);  // a little more from the sky than the floor
+    float nv = max(dot(n, v), 0.0);
+    float fresnel = 0.04 + 0.96 * pow(1.0 - nv, 5.0);
+    vec3 sky = ambient_light * (0.75 + 0.25 * n.y);  // a little more from the sky than the floor
+    vec3 diffuse_light = sky;
+    vec3 spec_light = vec3(0.0);
     for (int i = 0; i < n_directional_lights; i++) {
         vec3 l = -directional_lights[i].direction;
         vec3 radiance = directional_lights[i].color * directional_lights[i].intensity;
         float ndl = dot(n, l);
-        float diffuse = max((ndl + 0.15) / 1.15, 0.0);  // wrapped: softer shadow edge
+        float plain = max((ndl + 0.15) / 1.15, 0.0);  // wrapped: a softer shadow edge
+        vec3 wrapped = max((vec3(ndl) + SCATTER_WRAP) / (1.0 + SCATTER_WRAP), 0.0) * SCATTER_TINT;
+        vec3 diffuse = mix(vec3(plain), wrapped, scatter);
         float spec = pow(max(dot(n, normalize(l + v)), 0.0), shininess) * spec_scale * max(ndl, 0.0);
-        light += radiance * (0.96 * INV_PI * diffuse + spec);
+        diffuse_light += radiance * 0.96 * INV_PI * diffuse;
+        spec_light += radiance * spec * (1.0 + 4.0 * fresnel);
     }
-    vec3 color = light * material.base_color_factor.rgb * frag_color_in.rgb;
+    vec3 color = diffuse_light * base.rgb + spec_light;
+    // skin and cloth catch a little light at grazing angles (the sheen of fine hair and fibre)
+    color += sky * base.rgb * (0.25 * scatter + 0.1) * pow(1.0 - nv, 3.0);
     frag_color = vec4(pow(clamp(color, 0.0, 1.0), vec3(1.0 / 2.2)), 1.0);
 }
 """

@@ -1,9 +1,12 @@
 """Small mesh primitives for the procedural avatar: lofted tubes, parametric grids, weights.
 
-Everything here is plain NumPy on the rest pose; ``avatar_mesh`` composes these into a body.
+Everything here is plain NumPy on the rest pose; ``mannequin`` and ``mannequin_face`` compose
+these into a body.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
@@ -161,7 +164,64 @@ def chain_weights(
     return w
 
 
+def ramp_weights(
+    s: np.ndarray, owners: list[int], bounds: list[float], blend: list[float], num_joints: int
+) -> np.ndarray:
+    """(N, J) weights along a limb coordinate ``s``: ``owners[k]`` holds the stretch between
+    ``bounds[k-1]`` and ``bounds[k]``; across each bound the next owner takes over by a smooth ramp
+    ``blend[k]`` wide on either side."""
+    s = np.asarray(s, float)
+    past = [np.ones_like(s)] + [smoothstep(b - h, b + h, s) for b, h in zip(bounds, blend)] + [np.zeros_like(s)]
+    w = np.zeros((len(s), num_joints))
+    for k, joint in enumerate(owners):
+        w[:, joint] += past[k] - past[k + 1]
+    return w
+
+
 def rigid_weights(count: int, joint: int, num_joints: int) -> np.ndarray:
     w = np.zeros((count, num_joints))
     w[:, joint] = 1.0
     return w
+
+
+@dataclasses.dataclass
+class Part:
+    """One piece of the mannequin before assembly: a material's vertices, faces, skin weights over
+    the canonical joints, vertex colours and its share of the morph targets."""
+
+    material: str
+    verts: np.ndarray  # (N, 3)
+    faces: np.ndarray  # (F, 3), outward
+    weights: np.ndarray  # (N, 55)
+    colors: np.ndarray  # (N, 3) linear RGB
+    deltas: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # ARKit name -> (N, 3)
+
+
+def part(material: str, verts: np.ndarray, faces: np.ndarray, weights: np.ndarray, color: np.ndarray) -> Part:
+    """A ``Part`` with one colour (3,) for every vertex, or a colour per vertex (N, 3)."""
+    verts = np.asarray(verts, float)
+    colors = np.broadcast_to(np.asarray(color, float), verts.shape).copy()
+    return Part(material, verts, np.asarray(faces, np.int64), weights, colors)
+
+
+def torus(
+    center: np.ndarray, ring: tuple[float, float], minor: float, rows: int, cols: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A ring (in the XZ plane, half-axes ``ring``) of round cross-section ``minor``: vertices,
+    outward faces, and each vertex's angle around the ring."""
+    u = np.linspace(0, 2 * np.pi, cols, endpoint=False)
+    v = np.linspace(0, 2 * np.pi, rows, endpoint=False)
+    axis = np.stack([ring[0] * np.sin(u), np.zeros_like(u), ring[1] * np.cos(u)], 1)
+    out = normalize(np.stack([np.sin(u) / ring[0], np.zeros_like(u), np.cos(u) / ring[1]], 1))
+    up = np.array([0.0, 1.0, 0.0])
+    verts = (
+        axis[:, None] + minor * np.cos(v)[None, :, None] * out[:, None] + minor * np.sin(v)[None, :, None] * up
+    ).reshape(-1, 3) + center
+    faces = []
+    for i in range(cols):
+        for j in range(rows):
+            a, b = i * rows + j, i * rows + (j + 1) % rows
+            c, d = ((i + 1) % cols) * rows + j, ((i + 1) % cols) * rows + (j + 1) % rows
+            faces += [(a, b, d), (a, d, c)]
+    inside = np.repeat(axis + center, rows, axis=0)
+    return verts, orient_outward(verts, np.array(faces, np.int64), inside), np.repeat(u, rows)

@@ -1,8 +1,9 @@
 """The avatar's studio: materials, three-point lighting, a backdrop, camera presets, grid layout.
 
-``AvatarRenderer`` owns one offscreen GL context and one avatar mesh whose vertex buffers are
-rewritten in place each frame (``glBufferSubData``), so posing costs no GL allocations; K takes
-are drawn one after another into the tiles of a grid.
+``AvatarRenderer`` owns one offscreen GL context and one rig (the built-in mannequin or an avatar
+loaded from a file) whose vertex buffers are rewritten in place each frame (``glBufferSubData``),
+so posing costs no GL allocations; K takes are drawn one after another into the tiles of a grid.
+Cameras frame the rig by its own landmarks, so a taller or smaller avatar is framed alike.
 """
 
 from __future__ import annotations
@@ -17,12 +18,11 @@ from typing import Any
 import numpy as np
 
 from convodrive.backends.avatar import avatar_shader
-from convodrive.backends.avatar.avatar_mesh import MATERIALS, build_avatar
 from convodrive.backends.avatar.mesh_build import smoothstep
 from convodrive.backends.avatar.pyrender_gl import delete_offscreen, import_pyrender
-from convodrive.backends.avatar.skinning import AvatarPoser
+from convodrive.backends.avatar.rig import Rig, Surface
+from convodrive.backends.avatar.skinning import RigPoser
 from convodrive.motion.clip import MotionFrame
-from convodrive.motion.skeleton import REST_POSITIONS
 from convodrive.plumbing.errors import UserError
 
 WALL_Z = -1.3
@@ -33,18 +33,37 @@ BACKGROUND = WALL_COLOR
 
 @dataclasses.dataclass(frozen=True)
 class CameraPreset:
-    target: tuple[float, float, float]
-    height: float  # metres to fit vertically at the target
-    width: float  # metres to fit horizontally
+    """A framing in units of the rig's head height (chin to crown), around one of its landmarks."""
+
+    anchor: str  # a landmark of the rig, or "floor" (the point under the pelvis)
+    offset: tuple[float, float, float]  # from the anchor, in head heights
+    height: float  # head heights to fit vertically at the target
+    width: float  # head heights to fit horizontally
     elevation_deg: float
     yfov_deg: float = 26.0
+    azimuth_deg: float = 0.0  # about Y, from the front; +90 looks at the character's left side
 
 
 CAMERAS: dict[str, CameraPreset] = {
-    "full": CameraPreset((0.0, 0.93, 0.0), 2.0, 1.2, 6.0),
-    "upper": CameraPreset((0.0, 1.31, 0.02), 0.98, 0.9, 4.0),
-    "face": CameraPreset((0.0, 1.618, 0.06), 0.29, 0.25, 2.0),
+    "full": CameraPreset("floor", (0.0, 3.7, 0.0), 7.9, 4.8, 6.0),
+    "upper": CameraPreset("crown", (0.0, -1.45, 0.02), 3.15, 3.0, 4.0),
+    "face": CameraPreset("face", (0.0, 0.02, 0.0), 1.17, 1.0, 2.0),
 }
+"""``upper`` frames the chest up with the face over a fifth of the frame's height, large enough
+to read the lips; ``face`` fills the frame with the head."""
+
+
+def frame_target(preset: CameraPreset, rig: Rig) -> tuple[np.ndarray, float, float]:
+    """World target point, height and width (metres) of ``preset`` on ``rig``."""
+    marks = rig.landmarks
+    head = float(marks["crown"][1] - marks["chin"][1])
+    if preset.anchor == "floor":
+        anchor = np.array([marks["pelvis"][0], 0.0, marks["pelvis"][2]])
+    elif preset.anchor == "face":
+        anchor = 0.5 * (marks["chin"] + marks["hairline"])
+    else:
+        anchor = np.array(marks[preset.anchor], float)
+    return anchor + head * np.array(preset.offset), head * preset.height, head * preset.width
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
@@ -59,12 +78,13 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -
     return pose
 
 
-def camera_pose(preset: CameraPreset, aspect: float) -> np.ndarray:
+def camera_pose(preset: CameraPreset, rig: Rig, aspect: float) -> np.ndarray:
+    target, height, width = frame_target(preset, rig)
     half = math.tan(math.radians(preset.yfov_deg) / 2)
-    dist = max(preset.height / 2 / half, preset.width / 2 / (half * aspect))
-    elev = math.radians(preset.elevation_deg)
-    target = np.array(preset.target)
-    return look_at(target + dist * np.array([0.0, math.sin(elev), math.cos(elev)]), target)
+    dist = max(height / 2 / half, width / 2 / (half * aspect))
+    elev, azim = math.radians(preset.elevation_deg), math.radians(preset.azimuth_deg)
+    direction = np.array([math.cos(elev) * math.sin(azim), math.sin(elev), math.cos(elev) * math.cos(azim)])
+    return look_at(target + dist * direction, target)
 
 
 def grid_shape(count: int) -> tuple[int, int]:
@@ -139,46 +159,34 @@ class AvatarRenderer:
         self,
         width: int = 512,
         height: int = 512,
-        camera: str = "upper",
+        camera: str | CameraPreset = "upper",
         antialias: bool = False,
         lean_shader: bool = True,
+        rig: Rig | None = None,
     ) -> None:
-        if camera not in CAMERAS:
+        if isinstance(camera, str) and camera not in CAMERAS:
             raise UserError(f"render: camera {camera!r} is not one of {', '.join(CAMERAS)}")
         self.pyrender = pyrender = import_pyrender()
         from OpenGL import GL
 
         self._gl = GL
-        self.width, self.height, self.camera_name = int(width), int(height), camera
-        self.avatar = build_avatar()
-        self.poser = AvatarPoser(self.avatar)
+        self.width, self.height = int(width), int(height)
+        if rig is None:
+            from convodrive.backends.avatar.mannequin import build_mannequin
+
+            rig = build_mannequin()
+        self.rig = rig
+        self.poser = RigPoser(rig)
         self.scene = pyrender.Scene(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=[0.20, 0.20, 0.22])
         self._primitives: list[tuple[Any, int, int, np.ndarray]] = []
-        prims = []
-        for material, (start, end) in self.avatar.material_ranges.items():
-            pbr = pyrender.MetallicRoughnessMaterial(
-                baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0, roughnessFactor=MATERIALS[material]
-            )
-            colors = self.avatar.colors[start:end]
-            prim = pyrender.Primitive(
-                positions=self.avatar.rest[start:end],
-                normals=np.tile([0.0, 0.0, 1.0], (end - start, 1)),
-                color_0=colors,
-                indices=self.avatar.material_faces[material],
-                material=pbr,
-            )
-            interleaved = np.zeros((end - start, 10), np.float32)
-            interleaved[:, 6:] = colors
-            prims.append(prim)
-            self._primitives.append((prim, start, end, interleaved))
-        self.scene.add(pyrender.Mesh(prims))
-        preset = CAMERAS[camera]
+        self.scene.add(pyrender.Mesh([self._primitive(surface) for surface in rig.surfaces]))
+        preset = CAMERAS[camera] if isinstance(camera, str) else camera
         self.camera = pyrender.PerspectiveCamera(
             yfov=math.radians(preset.yfov_deg), aspectRatio=self.width / self.height, znear=0.05, zfar=30.0
         )
-        self.camera_pose = camera_pose(preset, self.width / self.height)
+        self.camera_pose = camera_pose(preset, rig, self.width / self.height)
         self.scene.add(self.camera, pose=self.camera_pose)
-        target = np.array(preset.target)
+        target = frame_target(preset, rig)[0]
         for color, intensity, where in (
             ((1.0, 0.96, 0.90), 3.2, (1.6, 2.4, 2.6)),  # key: front left, high
             ((0.85, 0.90, 1.0), 1.3, (-2.2, 1.2, 2.0)),  # fill: front right, low
@@ -200,6 +208,46 @@ class AvatarRenderer:
                 self.renderer.render(self.scene)  # allocates the framebuffer
         except Exception as exc:  # a platform that probed fine but cannot open this size
             raise UserError(f"render: cannot open a {self.width}x{self.height} offscreen GL context: {exc}") from None
+
+    def _primitive(self, surface: Surface) -> Any:
+        """A pyrender primitive for one surface, remembered with the vertex buffer ``_upload`` rewrites.
+
+        Our shader reads pyrender's ``metallic_factor`` as the skin scatter (it draws no metals)
+        and ``emissive_factor.x`` as the alpha cutoff of a masked texture.
+        """
+        pyrender, rig = self.pyrender, self.rig
+        material = rig.materials[surface.material]
+        start, end = surface.start, surface.end
+        texture = None
+        if material.texture is not None and rig.uv is not None:
+            texture = pyrender.Texture(
+                source=material.texture,
+                source_channels="RGBA",
+                sampler=pyrender.Sampler(magFilter=9729, minFilter=9987),  # linear, mipmapped
+            )
+        cutoff = material.alpha_cutoff
+        pbr = pyrender.MetallicRoughnessMaterial(
+            baseColorFactor=list(material.color),
+            baseColorTexture=texture,
+            metallicFactor=material.scatter,
+            roughnessFactor=material.roughness,
+            emissiveFactor=[cutoff if cutoff is not None else -1.0, 0.0, 0.0],
+            alphaMode="BLEND" if cutoff is not None else "OPAQUE",
+            doubleSided=material.double_sided,
+        )
+        colors = rig.colors[start:end]
+        uv = rig.uv[start:end] if texture is not None and rig.uv is not None else None
+        prim = pyrender.Primitive(
+            positions=rig.rest[start:end],
+            normals=rig.normals[start:end],
+            texcoord_0=uv,
+            color_0=colors,
+            indices=surface.faces,
+            material=pbr,
+        )
+        columns = [rig.rest[start:end], rig.normals[start:end]] + ([uv] if uv is not None else []) + [colors]
+        self._primitives.append((prim, start, end, np.hstack(columns).astype(np.float32)))
+        return prim
 
     def _upload(self, verts: np.ndarray, normals: np.ndarray) -> None:
         GL = self._gl
@@ -245,7 +293,9 @@ class AvatarRenderer:
         rgba, depth = self.renderer.render(self.scene, flags=self.pyrender.RenderFlags.RGBA)
         if rgba.shape[-1] == 3:  # OSMesa draws to its own buffer and returns RGB: coverage from depth
             rgba = np.dstack([rgba, np.where(depth > 0, 255, 0).astype(np.uint8)])
-        image = self._composite(rgba, REST_POSITIONS[0] + np.asarray(frame.translation, float))
+        image = self._composite(
+            rgba, self.rig.landmarks["pelvis"] + self.poser.translation_scale * np.asarray(frame.translation, float)
+        )
         self.stats["skin_s"] += t1 - t0
         self.stats["gl_s"] += time.perf_counter() - t1
         self.stats["frames"] += 1

@@ -1,8 +1,13 @@
-"""Pose the avatar: blendshapes, eyelids and gaze, then linear blend skinning, all vectorised.
+"""Pose a ``Rig`` from canonical motion: retarget rotations, morph targets, linear blend skinning.
 
-Per frame: one small matmul adds the face blendshapes, eyelids are placed on their spheres, forward
-kinematics gives every joint's transform, one sparse (V x 55) @ (55 x 12) product blends them per
-vertex, and a sparse vertex-face sum gives smooth normals. No Python loop over vertices.
+Per frame: canonical forward kinematics gives each canonical joint's rotation away from its rest
+(the canonical rest pose has no joint rotations, so a global rotation *is* that change); each rig
+joint takes the change of the canonical joint it maps to, applied to its own rest orientation, so
+bones of any length and local axes follow (``RigPoser.joint_world``). A rig whose rest pose is not
+the canonical T-pose (an A-pose) is aligned bone by bone first (``rest_alignment``). Then one
+small matmul adds the morph targets, one sparse (V x J) @ (J x 12) product blends the joint
+transforms per vertex, and a sparse vertex-face sum gives smooth normals. No Python loop over
+vertices.
 """
 
 from __future__ import annotations
@@ -10,32 +15,39 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from convodrive.backends.avatar.avatar_mesh import LID_REST_EDGES, SHAPES, Avatar, lid_positions
-from convodrive.motion.channels import BLENDSHAPE_INDEX
+from convodrive.backends.avatar.rig import Rig, Skeleton, trs_matrix
+from convodrive.motion.channels import BLENDSHAPE_INDEX, JAW_OPEN_RAD
 from convodrive.motion.channels import EYE_LOOK_PITCH_RAD as GAZE_PITCH  # the joint-channel tie
 from convodrive.motion.channels import EYE_LOOK_YAW_RAD as GAZE_YAW
-from convodrive.motion.channels import JAW_OPEN_RAD as JAW_RAD_AT_FULL_OPEN
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.rotations import axis_angle_to_matrix, euler_to_matrix
 from convodrive.motion.skeleton import JOINT_INDEX, REST_POSITIONS, forward_kinematics
 
-_SHAPE_COLUMNS = np.array([BLENDSHAPE_INDEX[name] for name in SHAPES])
 _JAW = JOINT_INDEX["jaw"]
 _EYES = (JOINT_INDEX["left_eye_smplhf"], JOINT_INDEX["right_eye_smplhf"])
 
-
-def skinning_matrices(rotations: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """(55, 12): each joint's rest-to-posed transform [R | p - R r], flattened row-major."""
-    t = positions - np.einsum("jab,jb->ja", rotations, REST_POSITIONS)
-    return np.concatenate([rotations, t[:, :, None]], axis=2).reshape(len(rotations), 12)
-
-
-def linear_blend_skinning(
-    points: np.ndarray, weights: sp.csr_matrix, rotations: np.ndarray, positions: np.ndarray
-) -> np.ndarray:
-    """Skin rest-pose ``points`` (V, 3) with ``weights`` (V, 55) by global joint transforms."""
-    blended = np.asarray(weights @ skinning_matrices(rotations, positions)).reshape(-1, 3, 4)
-    return np.einsum("vab,vb->va", blended[:, :, :3], points) + blended[:, :, 3]
+# The child whose direction defines each canonical bone, for aligning a rig's rest pose to ours.
+_AIM: dict[str, str] = {
+    "pelvis": "spine1",
+    "spine1": "spine2",
+    "spine2": "spine3",
+    "spine3": "neck",
+    "neck": "head",
+    **{f"{s}_{a}": f"{s}_{b}" for s in ("left", "right") for a, b in (("hip", "knee"), ("knee", "ankle"))},
+    **{f"{s}_ankle": f"{s}_foot" for s in ("left", "right")},
+    **{
+        f"{s}_{a}": f"{s}_{b}"
+        for s in ("left", "right")
+        for a, b in (("collar", "shoulder"), ("shoulder", "elbow"), ("elbow", "wrist"), ("wrist", "middle1"))
+    },
+    **{
+        f"{s}_{f}{i}": f"{s}_{f}{i + 1}"
+        for s in ("left", "right")
+        for f in ("thumb", "index", "middle", "ring", "pinky")
+        for i in (1, 2)
+    },
+}
+AIM_CHILD: dict[int, int] = {JOINT_INDEX[a]: JOINT_INDEX[b] for a, b in _AIM.items()}
 
 
 def gaze_from_channels(face: np.ndarray) -> np.ndarray:
@@ -49,70 +61,175 @@ def gaze_from_channels(face: np.ndarray) -> np.ndarray:
     return out
 
 
-class AvatarPoser:
-    """Turns canonical motion frames into posed vertices and normals for one ``Avatar``."""
+def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation (3x3) taking direction ``a`` to direction ``b``."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    v, c = np.cross(a, b), float(np.dot(a, b))
+    if c < -1 + 1e-9:  # opposite: half a turn about any axis normal to a
+        axis = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        axis /= np.linalg.norm(axis)
+        return 2 * np.outer(axis, axis) - np.eye(3)
+    k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + k + k @ k / (1 + c)
 
-    def __init__(self, avatar: Avatar) -> None:
-        self.avatar = avatar
-        faces = avatar.faces.astype(np.int64)
-        v, f = avatar.num_vertices, len(faces)
-        self._vertex_faces = sp.csr_matrix((np.ones(3 * f), (faces.ravel(), np.repeat(np.arange(f), 3))), shape=(v, f))
-        self._faces = faces
-        self._deltas = avatar.shape_deltas.reshape(len(SHAPES), -1)
-        lids = avatar.lids
-        self._lid_args = (lids.eye, lids.psi, lids.start, lids.t, lids.radius)
 
-    def joint_transforms(self, frame: MotionFrame) -> tuple[np.ndarray, np.ndarray]:
-        """Global joint rotations (55, 3, 3) and positions (55, 3), gaze filled from channels if needed."""
+def rest_alignment(skeleton: Skeleton, rest_world: np.ndarray) -> np.ndarray:
+    """(J, 3, 3) per joint, the rotation that turns its rest bone direction into the canonical one.
+
+    Identity for a rig in our own rest pose; for an A-pose rig it lifts the arms into the T-pose
+    the canonical rotations start from. A joint with no aim child of its own (a head, a fingertip)
+    keeps its parent's alignment, as it hangs from its parent in the rest pose.
+    """
+    by_canonical = {int(c): j for j, c in enumerate(skeleton.canonical) if c >= 0}
+    align = np.tile(np.eye(3), (skeleton.num_joints, 1, 1))
+    for j, c in enumerate(skeleton.canonical):
+        p = skeleton.parents[j]
+        if p >= 0:
+            align[j] = align[p]
+        if c < 0 or int(c) not in AIM_CHILD or AIM_CHILD[int(c)] not in by_canonical:
+            continue
+        child = by_canonical[AIM_CHILD[int(c)]]
+        ours = rest_world[child, :3, 3] - rest_world[j, :3, 3]
+        theirs = REST_POSITIONS[AIM_CHILD[int(c)]] - REST_POSITIONS[int(c)]
+        if np.linalg.norm(ours) > 1e-6:
+            align[j] = rotation_between(ours, theirs)
+    return align
+
+
+def _rotation_part(m: np.ndarray) -> np.ndarray:
+    r = m[..., :3, :3]
+    return r / np.linalg.norm(r, axis=-2, keepdims=True)
+
+
+class RigPoser:
+    """Turns canonical motion frames into posed vertices and normals for one ``Rig``."""
+
+    def __init__(self, rig: Rig) -> None:
+        self.rig = rig
+        sk = rig.skeleton
+        rest_world = sk.rest_world()
+        self._rest_rot = _rotation_part(rest_world)
+        self._align = rest_alignment(sk, rest_world)
+        self._canonical = [int(c) for c in sk.canonical]
+        mapped = {c: j for j, c in enumerate(self._canonical) if c >= 0}
+        self.root_joint = mapped.get(0, -1)
+        height = rest_world[self.root_joint, 1, 3] if self.root_joint >= 0 else REST_POSITIONS[0, 1]
+        self.translation_scale = float(height / REST_POSITIONS[0, 1]) if height > 0.05 else 1.0
+        self._locals = [
+            (sk.translation[j].copy(), sk.rotation[j].copy(), sk.scale[j].copy()) for j in range(sk.num_joints)
+        ]
+        self._morph_columns = np.array([BLENDSHAPE_INDEX[n] for n in rig.morph_names], dtype=int)
+        self._jaw_morph = rig.morph_names.index("jawOpen") if "jawOpen" in rig.morph_names else -1
+        self._deltas = rig.morph_deltas.reshape(len(rig.morph_names), -1).astype(np.float64)
+        self._rest = rig.rest.astype(np.float64)
+        self._faces = np.concatenate([s.faces.astype(np.int64) + s.start for s in rig.surfaces])
+        self._normal_sum = welded_incidence(rig.rest, rig.normals, self._faces)
+
+    def canonical_rotations(self, frame: MotionFrame) -> np.ndarray:
+        """(55, 3, 3) local rotations: gaze filled from channels when the eye joints are still, and
+        the jaw held shut when a ``jawOpen`` morph target opens the mouth (never twice)."""
         local = axis_angle_to_matrix(np.asarray(frame.pose, float))
         if not np.any(np.abs(frame.pose[list(_EYES)]) > 1e-6):
             local[list(_EYES)] = gaze_from_channels(frame.face)
-        return forward_kinematics(local, np.asarray(frame.translation, float))
+        if self._jaw_morph >= 0:
+            local[_JAW] = np.eye(3)
+        return local
 
-    def face_weights(self, frame: MotionFrame) -> np.ndarray:
-        """Blendshape weights in ``SHAPES`` order; the jaw joint's opening counts as ``jawOpen``."""
-        w = np.clip(np.asarray(frame.face, float)[_SHAPE_COLUMNS], 0.0, 1.0)
-        jaw_pitch = float(frame.pose[_JAW][0])
-        w[0] = max(w[0], float(np.clip(jaw_pitch / JAW_RAD_AT_FULL_OPEN, 0.0, 1.0)))
+    def joint_world(self, frame: MotionFrame) -> np.ndarray:
+        """(J, 4, 4) posed world transforms of the rig's joints."""
+        change, _ = forward_kinematics(self.canonical_rotations(frame))
+        sk = self.rig.skeleton
+        world = np.empty((sk.num_joints, 4, 4))
+        orient = np.empty((sk.num_joints, 3, 3))
+        shift = np.asarray(frame.translation, float) * self.translation_scale
+        for j, p in enumerate(sk.parents):
+            t, r, s = self._locals[j]
+            parent_orient = orient[p] if p >= 0 else np.eye(3)
+            c = self._canonical[j]
+            if c >= 0:
+                orient[j] = change[c] @ self._align[j] @ self._rest_rot[j]
+                r = parent_orient.T @ orient[j]
+            else:
+                orient[j] = parent_orient @ r
+            local = trs_matrix(t, r, s)
+            world[j] = local if p < 0 else world[p] @ local
+            if j == self.root_joint:
+                world[j, :3, 3] += shift
+        return world
+
+    def morph_weights(self, frame: MotionFrame) -> np.ndarray:
+        """Weights of the rig's morph targets; the jaw joint's opening counts as ``jawOpen``."""
+        w = np.clip(np.asarray(frame.face, float)[self._morph_columns], 0.0, 1.0)
+        if self._jaw_morph >= 0:
+            jaw = float(np.clip(frame.pose[_JAW][0] / JAW_OPEN_RAD, 0.0, 1.0))
+            w[self._jaw_morph] = max(w[self._jaw_morph], jaw)
         return w
 
-    def lid_edges(self, frame: MotionFrame, eye_rotations: np.ndarray) -> np.ndarray:
-        """Edge elevations (left upper, left lower, right upper, right lower), radians.
-
-        Lids close with ``eyeBlink*``, open with ``eyeWide*``, narrow with ``eyeSquint*`` and
-        follow the eye's pitch, as real lids do when someone looks down.
-        """
-        face = frame.face
-        edges = LID_REST_EDGES.copy()
-        for i, side in enumerate(("Left", "Right")):
-            blink, wide, squint = (float(face[BLENDSHAPE_INDEX[f"eye{k}{side}"]]) for k in ("Blink", "Wide", "Squint"))
-            pitch = float(np.arcsin(np.clip(eye_rotations[i][1, 2], -1, 1)))  # forward's Y: up is positive
-            edges[2 * i] = np.clip(
-                edges[2 * i] + np.radians(12) * wide - np.radians(52) * blink - np.radians(10) * squint + 0.7 * pitch,
-                np.radians(-29),
-                np.radians(45),
-            )
-            edges[2 * i + 1] = np.clip(
-                edges[2 * i + 1] + np.radians(12) * squint + 0.3 * pitch, np.radians(-45), np.radians(-16)
-            )
-        return edges
+    def skin_matrices(self, frame: MotionFrame) -> np.ndarray:
+        """(J, 12): each joint's bind-to-posed transform, its top three rows flattened."""
+        m = self.joint_world(frame) @ self.rig.skeleton.inverse_bind
+        return m[:, :3, :].reshape(len(m), 12)
 
     def pose(self, frame: MotionFrame) -> tuple[np.ndarray, np.ndarray]:
         """Posed vertices and unit normals, (V, 3) float32 each."""
-        av = self.avatar
-        rest = av.rest.astype(np.float64)
-        shaped = rest.copy()
-        shaped[av.shape_index] += (self.face_weights(frame) @ self._deltas).reshape(-1, 3)
-        rotations, positions = self.joint_transforms(frame)
-        head = rotations[JOINT_INDEX["head"]]
-        eye_local = [head.T @ rotations[e] for e in _EYES]
-        shaped[av.lids.index] = lid_positions(*self._lid_args, self.lid_edges(frame, eye_local), av.lids.upper)
-        verts = linear_blend_skinning(shaped, av.weights, rotations, positions)
+        shaped = self._rest.copy()
+        if len(self._deltas):
+            shaped[self.rig.morph_index] += (self.morph_weights(frame) @ self._deltas).reshape(-1, 3)
+        blended = np.asarray(self.rig.weights @ self.skin_matrices(frame)).reshape(-1, 3, 4)
+        verts = np.einsum("vab,vb->va", blended[:, :, :3], shaped) + blended[:, :, 3]
         return verts.astype(np.float32), self.normals(verts).astype(np.float32)
 
     def normals(self, verts: np.ndarray) -> np.ndarray:
-        tri = verts[self._faces]
-        face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # area-weighted
-        n = np.asarray(self._vertex_faces @ face_n)
-        length = np.linalg.norm(n, axis=1, keepdims=True)
-        return np.where(length > 1e-12, n / np.maximum(length, 1e-12), [0.0, 0.0, 1.0])
+        return vertex_normals(verts, self._faces, self._normal_sum)
+
+
+def vertex_normals(verts: np.ndarray, faces: np.ndarray, vertex_faces: sp.csr_matrix) -> np.ndarray:
+    """Unit normals: area-weighted face normals summed over ``vertex_faces`` (V x F)."""
+    tri = verts[faces]
+    face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n = np.asarray(vertex_faces @ face_n)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.where(length > 1e-12, n / np.maximum(length, 1e-12), [0.0, 0.0, 1.0])
+
+
+def incidence(num_vertices: int, faces: np.ndarray) -> sp.csr_matrix:
+    """(V, F) 1 where a vertex is a corner of a face."""
+    f = len(faces)
+    return sp.csr_matrix((np.ones(3 * f), (faces.ravel(), np.repeat(np.arange(f), 3))), shape=(num_vertices, f))
+
+
+def welded_incidence(points: np.ndarray, normals: np.ndarray | None, faces: np.ndarray) -> sp.csr_matrix:
+    """(V, F) which faces shade each vertex. Vertices at one rest position whose rest normals
+    agree (a texture seam, a sleeve meeting a hand) share their faces, so no seam shows; a
+    deliberate hard edge (normals apart) stays hard."""
+    v = len(points)
+    plain = incidence(v, faces)
+    group = weld_groups(points, normals)
+    if group is None:
+        return plain
+    weld = sp.csr_matrix((np.ones(v), (np.arange(v), group)), shape=(v, v))
+    return weld @ (weld.T @ plain)
+
+
+def smooth_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Rest normals for a mesh that brings none: smooth, and shared where vertices coincide."""
+    points = np.asarray(points, float)
+    own = vertex_normals(points, faces, incidence(len(points), faces))
+    return vertex_normals(points, faces, welded_incidence(points, own, faces))
+
+
+def weld_groups(points: np.ndarray, normals: np.ndarray | None, tol: float = 1e-5) -> np.ndarray | None:
+    """(V,) a group id per vertex, shared by coincident vertices with agreeing normals; None when
+    no two vertices coincide."""
+    keys = np.round(np.asarray(points, float) / tol).astype(np.int64)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.ravel()
+    if len(first) == len(points):
+        return None
+    group = first[inverse]
+    if normals is not None:  # split a position's vertices whose normals disagree with its first
+        n = np.asarray(normals, float)
+        apart = np.einsum("ij,ij->i", n, n[group]) < 0.5
+        group = np.where(apart, np.arange(len(points)), group)
+    return group

@@ -30,6 +30,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "convodrive.cli.plugins",
     "convodrive.cli.eval",
     "convodrive.cli.render",
+    "convodrive.cli.avatar",
     "convodrive.cli.emulate",
     "convodrive.cli.servo",
     "convodrive.cli.corpus",

@@ -34,6 +34,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--resolution", default="512x512", metavar="WxH", help="size of each take (default: 512x512)")
     p.add_argument("--out", type=Path, metavar="FILE", help="output .mp4 (default: next to the first clip)")
     p.add_argument("--antialias", action="store_true", help="4x multisampling (slower on CPU)")
+    p.add_argument(
+        "--avatar", type=Path, metavar="PATH", help="a .glb/.gltf/.vrm avatar (or a YAML name map) instead of the mannequin"
+    )
     p.set_defaults(func=run)
 
 
@@ -67,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
                 "filename": out.name,
                 "contact_sheet": f"{out.stem}_contact.png",
                 "antialias": args.antialias,
+                "avatar": str(args.avatar) if args.avatar else "",
             }
         },
         samples=len(args.motion),

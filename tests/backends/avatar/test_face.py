@@ -5,9 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from convodrive.backends.avatar.avatar_mesh import MAX_INFLUENCES, MOUTH_HALF_WIDTH, MOUTH_Y, build_avatar
-from convodrive.backends.avatar.skinning import JAW_RAD_AT_FULL_OPEN, AvatarPoser, skinning_matrices
+from convodrive.backends.avatar.mannequin import MAX_INFLUENCES, build_mannequin
+from convodrive.backends.avatar.mannequin_face import MOUTH_HALF_WIDTH, MOUTH_Y
+from convodrive.backends.avatar.skinning import RigPoser
 from convodrive.motion.channels import BLENDSHAPE_INDEX
+from convodrive.motion.channels import JAW_OPEN_RAD as JAW_RAD_AT_FULL_OPEN
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.rotations import axis_angle_to_matrix
 from convodrive.motion.skeleton import JOINT_INDEX, REST_POSITIONS, forward_kinematics
@@ -45,13 +47,13 @@ def _box(renderer, points: np.ndarray, margin: float = 3) -> tuple[slice, slice]
 def _mouth_box(r):
     """Lips, mouth corners and the jaw below them (an open jaw moves the chin and its sides)."""
     w = MOUTH_HALF_WIDTH + 0.027
-    z = r.avatar.landmarks["mouth"][2]
+    z = r.rig.landmarks["mouth"][2]
     return _box(r, np.array([[-w, MOUTH_Y + 0.016, z], [w, MOUTH_Y - 0.075, z]]))
 
 
 def _eye_boxes(r):
     return [
-        _box(r, r.avatar.landmarks[k] + np.array([[-0.02, -0.017, 0.012], [0.02, 0.02, 0.012]]))
+        _box(r, r.rig.landmarks[k] + np.array([[-0.02, -0.017, 0.012], [0.02, 0.02, 0.012]]))
         for k in ("left_eye", "right_eye")
     ]
 
@@ -90,7 +92,7 @@ def test_blink_changes_the_eyes_and_nothing_else(face_renderer):
 def _pupil_boxes(r):
     """The eyeball's visible band: wide enough for the pupil to travel, below the lash line."""
     return [
-        _box(r, r.avatar.landmarks[k] + np.array([[-0.013, -0.004, 0.012], [0.013, 0.003, 0.012]]), margin=0)
+        _box(r, r.rig.landmarks[k] + np.array([[-0.013, -0.004, 0.012], [0.013, 0.003, 0.012]]), margin=0)
         for k in ("left_eye", "right_eye")
     ]
 
@@ -144,7 +146,7 @@ def test_lip_shapes_move_the_lips(face_renderer, channel):
 def test_smile_is_one_sided(face_renderer):
     r = face_renderer
     diff = _changed(r.render(_frame()), r.render(_frame(mouthSmileLeft=1.0)))
-    mx = r.project(r.avatar.landmarks["mouth"])[0, 0]
+    mx = r.project(r.rig.landmarks["mouth"])[0, 0]
     cols = np.nonzero(diff.any(0))[0]
     # the character's left corner is on the image's right
     assert (cols > mx).sum() > 3 * max((cols < mx).sum(), 1)
@@ -154,14 +156,14 @@ def test_smile_is_one_sided(face_renderer):
 def test_brows_raise(face_renderer):
     r = face_renderer
     diff = _changed(r.render(_frame()), r.render(_frame(browInnerUp=1.0)))
-    eye_y = r.project(r.avatar.landmarks["left_eye"])[0, 1]
+    eye_y = r.project(r.rig.landmarks["left_eye"])[0, 1]
     rows = np.nonzero(diff.any(1))[0]
     assert len(rows) and rows.max() < eye_y  # only above the eyes
 
 
 def test_skinning_matches_forward_kinematics():
-    avatar = build_avatar()
-    poser = AvatarPoser(avatar)
+    avatar = build_mannequin()
+    poser = RigPoser(avatar)
     rng = np.random.default_rng(3)
     frame = MotionFrame.neutral()
     frame.pose[:] = rng.normal(0, 0.3, frame.pose.shape)
@@ -173,7 +175,7 @@ def test_skinning_matches_forward_kinematics():
     assert np.diff(w.indptr).max() <= MAX_INFLUENCES
     rigid = np.flatnonzero(np.isclose(w.max(1).toarray().ravel(), 1.0))
     joints = np.asarray(w[rigid].argmax(1)).ravel()
-    moved = set(avatar.shape_index) | set(avatar.lids.index)
+    moved = set(avatar.morph_index)
     keep = np.array([i not in moved for i in rigid])
     rigid, joints = rigid[keep], joints[keep]
     for j in (
@@ -189,13 +191,12 @@ def test_skinning_matches_forward_kinematics():
 
 
 def test_skinning_matrices_of_rest_pose_are_identity():
-    rot = np.tile(np.eye(3), (len(REST_POSITIONS), 1, 1))
-    m = skinning_matrices(rot, REST_POSITIONS).reshape(-1, 3, 4)
+    m = RigPoser(build_mannequin()).skin_matrices(MotionFrame.neutral()).reshape(-1, 3, 4)
     assert np.allclose(m[:, :, :3], np.eye(3)) and np.allclose(m[:, :, 3], 0.0)
 
 
 def test_jaw_joint_opens_the_mouth_like_jaw_open():
-    poser = AvatarPoser(build_avatar())
+    poser = RigPoser(build_mannequin())
     by_joint = MotionFrame.neutral()
     by_joint.pose[JOINT_INDEX["jaw"]] = [JAW_RAD_AT_FULL_OPEN, 0, 0]
     both = _frame(jawOpen=1.0)

@@ -192,7 +192,7 @@ def test_contact_sheet_keeps_frames_evenly_spread():
     sheet = ContactSheet(cells=4)
     for i in range(100):
         sheet.offer(i, np.full((8, 8, 3), i, np.uint8))
-    kept = [i for i, _ in sheet.kept]
+    kept = [i for i, _, _ in sheet.kept]
     assert len(kept) <= 8 and kept[0] == 0
     assert len(set(np.diff(kept))) == 1  # one stride
 
