@@ -15,7 +15,8 @@ dev=0
 # is live audio.
 apt_packages=(espeak-ng ffmpeg libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 libportaudio2 libasound2-plugins)
 # The tests also open the avatar's live window on a virtual X display, run live conversations on
-# their own PulseAudio servers, and load the live page in headless Chromium.
+# their own PulseAudio servers, load the live page in headless Chromium, and check the exported
+# glTF with the Khronos validator (an npm package, run by node).
 [ "$dev" = 1 ] && apt_packages+=(xvfb pulseaudio pulseaudio-utils chromium)
 missing=()
 for pkg in "${apt_packages[@]}"; do
@@ -56,4 +57,7 @@ pip_quiet install -e ".[$extras]"
 pip_quiet install --no-deps "pyrender==0.1.45"
 .venv/bin/python -c "import convodrive, OpenGL; assert tuple(map(int, OpenGL.__version__.split('.')[:3])) >= (3, 1, 7), OpenGL.__version__" \
     || { echo "setup: PyOpenGL is older than 3.1.7; MuJoCo's headless GL would break" >&2; exit 1; }
+if [ "$dev" = 1 ]; then
+    npm install --silent --no-audit --no-fund --prefix tools/node gltf-validator@2.0.0-dev.3.10 >/dev/null
+fi
 echo "setup: ready (.venv)"

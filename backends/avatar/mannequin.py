@@ -174,17 +174,17 @@ def _hand(side: str) -> list[Part]:
     wx = sgn * w0[0]
     ref = np.array([0.0, 1.0, 0.0])
     # along the hand: inside the cuff, the wrist joint, mid palm, the knuckles, the palm's far edge
-    along = np.array([wx - 0.05, wx - 0.012, wx + 0.004, wx + 0.042, wx + 0.082, wx + 0.094])
+    along = np.array([wx - 0.05, wx - 0.03, wx - 0.012, wx + 0.004, wx + 0.042, wx + 0.082, wx + 0.094])
     keys = np.stack(
         [
             sgn * along,
-            np.array([0.0, 0.0, -0.001, -0.003, -0.004, -0.004]) + w0[1],
-            np.array([0.002, 0.002, 0.0, -0.004, -0.006, -0.006]) + w0[2],
+            np.array([0.0, 0.0, 0.0, -0.001, -0.003, -0.004, -0.004]) + w0[1],
+            np.array([0.002, 0.002, 0.002, 0.0, -0.004, -0.006, -0.006]) + w0[2],
         ],
         1,
     )
-    across = [0.0235, 0.0245, 0.028, 0.040, 0.042, 0.030]
-    thick = [0.0195, 0.0185, 0.017, 0.0165, 0.0125, 0.008]
+    across = [0.0235, 0.024, 0.0245, 0.028, 0.040, 0.042, 0.030]
+    thick = [0.0195, 0.019, 0.0185, 0.017, 0.0165, 0.0125, 0.008]
     v, f, _ = loft(keys, across, thick, ref, 18, sub=3, caps=(False, True), power=2.3, cap_length=0.6)
     s = v @ out
     w = ramp_weights(s, [elbow, wrist], [wx - 0.004], [0.016], NUM_JOINTS)

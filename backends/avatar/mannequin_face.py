@@ -530,7 +530,7 @@ def _hair() -> Part:
     top = smoothstep(0.0, 0.9, dy)
     sides = np.abs(np.sin(lon))[None] * smoothstep(0.35, 0.7, dy) * smoothstep(1.0, 0.75, dy)
     volume = 0.007 + 0.009 * top + 0.006 * sides + 0.005 * smoothstep(0.3, 0.8, dy) * front[None] ** 2
-    volume *= 1 - 0.7 * smoothstep(0.6, 1.0, k) * (1 - 0.4 * front[None] ** 2)  # thinner toward the edge
+    volume *= 1 - 0.85 * smoothstep(0.45, 1.0, k) * (1 - 0.5 * front[None] ** 2)  # thinner toward the edge
     shell = scalp + normal * volume[..., None]
     rim = scalp[-1:] + normal[-1:] * 0.0008  # the edge turns in onto the scalp
     verts = np.concatenate([shell, rim]).reshape(-1, 3)
