@@ -20,6 +20,7 @@ from convodrive.motion.bvh import canonical_joint_name
 from convodrive.motion.channels import ARKIT_NAMES
 from convodrive.motion.skeleton import JOINT_INDEX
 from convodrive.plumbing.errors import InputFileError
+from convodrive.plumbing.safe_yaml import load_yaml_file
 
 _VRM_CENTRE = {
     "hips": "pelvis",
@@ -103,14 +104,7 @@ class NameMap:
 def read_name_map(path: Path) -> NameMap:
     """Parse ``avatar: FILE`` (relative to the YAML), ``bones: {hips: Root_Hips, ...}`` and
     ``morphs: {jawOpen: MouthOpen, ...}``; a mistake is one line naming the file and the key."""
-    import yaml
-
-    try:
-        data: Any = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise InputFileError(path, f"cannot read ({exc.strerror or exc})") from None
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise InputFileError(path, f"not valid YAML ({str(exc).splitlines()[0]})") from None
+    data: Any = load_yaml_file(path)
     if not isinstance(data, Mapping):
         raise InputFileError(path, "expected a mapping with 'avatar', 'bones' and 'morphs'")
     unknown = set(data) - {"avatar", "bones", "morphs"}
