@@ -168,6 +168,8 @@ def rig_to_gltf(rig: Rig) -> tuple[dict[str, Any], bytes]:
     images: list[dict[str, Any]] = []
     materials = []
     for m in rig.materials:
+        if not all(0.0 <= c <= 1.0 for c in m.color):
+            raise ValueError(f"material {m.name}: base colour factor {m.color} is outside glTF's [0, 1]")
         pbr: dict[str, Any] = {"baseColorFactor": list(m.color), "metallicFactor": 0.0, "roughnessFactor": m.roughness}
         if m.texture is not None:
             images.append({"bufferView": b.view(_png(m.texture)), "mimeType": "image/png"})

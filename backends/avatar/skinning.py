@@ -121,10 +121,11 @@ class RigPoser:
         ]
         self._morph_columns = np.array([BLENDSHAPE_INDEX[n] for n in rig.morph_names], dtype=int)
         self._jaw_morph = rig.morph_names.index("jawOpen") if "jawOpen" in rig.morph_names else -1
-        self._deltas = rig.morph_deltas.reshape(len(rig.morph_names), -1).astype(np.float64)
-        self._rest = rig.rest.astype(np.float64)
+        self._deltas = rig.morph_deltas.reshape(len(rig.morph_names), -1).astype(np.float32)
+        self._rest = rig.rest.astype(np.float32)
+        self._weights = rig.weights.astype(np.float32)
         self._faces = np.concatenate([s.faces.astype(np.int64) + s.start for s in rig.surfaces])
-        self._normal_sum = welded_incidence(rig.rest, rig.normals, self._faces)
+        self._normal_sum = welded_incidence(rig.rest, rig.normals, self._faces).astype(np.float32)
 
     def canonical_rotations(self, frame: MotionFrame) -> np.ndarray:
         """(55, 3, 3) local rotations: gaze filled from channels when the eye joints are still, and
@@ -172,13 +173,18 @@ class RigPoser:
         return m[:, :3, :].reshape(len(m), 12)
 
     def pose(self, frame: MotionFrame) -> tuple[np.ndarray, np.ndarray]:
-        """Posed vertices and unit normals, (V, 3) float32 each."""
+        """Posed vertices and unit normals, (V, 3) float32 each. Single precision throughout: a
+        tenth of a micrometre on a human-sized body, at half the memory traffic."""
         shaped = self._rest.copy()
         if len(self._deltas):
-            shaped[self.rig.morph_index] += (self.morph_weights(frame) @ self._deltas).reshape(-1, 3)
-        blended = np.asarray(self.rig.weights @ self.skin_matrices(frame)).reshape(-1, 3, 4)
-        verts = np.einsum("vab,vb->va", blended[:, :, :3], shaped) + blended[:, :, 3]
-        return verts.astype(np.float32), self.normals(verts).astype(np.float32)
+            w = self.morph_weights(frame)
+            active = np.flatnonzero(w > 1e-4)  # a face uses a few channels at a time
+            if len(active):
+                shaped[self.rig.morph_index] += (w[active].astype(np.float32) @ self._deltas[active]).reshape(-1, 3)
+        m = np.asarray(self._weights @ self.skin_matrices(frame).astype(np.float32))  # (V, 12) rows of [R | t]
+        x, y, z = shaped[:, 0:1], shaped[:, 1:2], shaped[:, 2:3]
+        verts = m[:, 0::4] * x + m[:, 1::4] * y + m[:, 2::4] * z + m[:, 3::4]
+        return verts, self.normals(verts)
 
     def normals(self, verts: np.ndarray) -> np.ndarray:
         return vertex_normals(verts, self._faces, self._normal_sum)
@@ -186,11 +192,21 @@ class RigPoser:
 
 def vertex_normals(verts: np.ndarray, faces: np.ndarray, vertex_faces: sp.csr_matrix) -> np.ndarray:
     """Unit normals: area-weighted face normals summed over ``vertex_faces`` (V x F)."""
-    tri = verts[faces]
-    face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    a, b, c = verts[faces[:, 0]], verts[faces[:, 1]], verts[faces[:, 2]]
+    u, v = b - a, c - a
+    face_n = np.stack(
+        [
+            u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1],
+            u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2],
+            u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0],
+        ],
+        1,
+    )
     n = np.asarray(vertex_faces @ face_n)
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.where(length > 1e-12, n / np.maximum(length, 1e-12), [0.0, 0.0, 1.0])
+    length = np.sqrt((n * n).sum(1, keepdims=True))
+    return np.where(length > 1e-12, n / np.maximum(length, 1e-12), np.array([0.0, 0.0, 1.0], n.dtype)).astype(
+        verts.dtype
+    )
 
 
 def incidence(num_vertices: int, faces: np.ndarray) -> sp.csr_matrix:
