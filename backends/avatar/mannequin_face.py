@@ -252,14 +252,14 @@ def _lips() -> Part:
     cu, su = np.cos(uu), np.sin(uu)
     a, b = MOUTH_HALF_WIDTH, 0.0038
     cx, cy = a * cu, MOUTH_Y + b * su
-    cz = surface_z(cx, cy) + 0.0045
-    r = np.where(su > 0, 0.0040, 0.0050) * (0.35 + 0.65 * np.abs(su) ** 0.5)
+    cz = surface_z(cx, cy) + 0.003
+    r = np.where(su > 0, 0.0038, 0.0047) * (0.35 + 0.65 * np.abs(su) ** 0.5)
     radial = normalize(np.stack([cu / a, su / b, np.zeros(nu)], 1))
     fwd = np.array([0.0, 0.0, 1.0])
     ring = np.stack([cx, cy, cz], 1)
     verts = (
         ring[:, None]
-        + r[:, None, None] * (np.cos(vv)[None, :, None] * radial[:, None] + 0.9 * np.sin(vv)[None, :, None] * fwd)
+        + r[:, None, None] * (np.cos(vv)[None, :, None] * radial[:, None] + 0.75 * np.sin(vv)[None, :, None] * fwd)
     ).reshape(-1, 3)
     faces = orient_outward(verts, torus_faces(nu, nv), np.repeat(ring, nv, axis=0))
     # a little darker where the lips meet, lighter on their fullest part
@@ -408,8 +408,8 @@ def _lids() -> list[Part]:
     parts = []
     for (side, sgn), center in zip((("Left", 1.0), ("Right", -1.0)), EYES):
         for k, upper in enumerate((True, False)):
-            rows, cols = 7, 17
-            psi = np.repeat(np.linspace(-1.45, 1.45, cols)[None], rows, 0).ravel()
+            rows, cols = 7, 21
+            psi = np.repeat(np.linspace(-1.85, 1.85, cols)[None], rows, 0).ravel()  # round the eyeball's sides
             t = np.repeat(np.linspace(0, 1, rows)[:, None], cols, 1).ravel()
             start = LID_UPPER_TOP if upper else LID_LOWER_BOTTOM
             radius, rest_edge = LID_RADIUS[k], LID_REST[k]

@@ -9,7 +9,11 @@ import importlib.resources
 import numpy as np
 import pytest
 
-mujoco = pytest.importorskip("mujoco")
+from tests.conftest import require
+
+pytestmark = require("mujoco")
+
+import mujoco  # noqa: E402
 
 SIMS = importlib.resources.files("convodrive.sims")
 HUMANOID = SIMS.joinpath("convo_humanoid.xml")

@@ -16,6 +16,7 @@ from convodrive.motion.clip import MotionFrame
 from convodrive.motion.skeleton import JOINT_INDEX, REST_POSITIONS
 
 SIZE = 192
+pytestmark = [pytest.mark.gl]
 
 
 def _inside_cuffs(rig: Rig) -> np.ndarray:
