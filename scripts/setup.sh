@@ -22,6 +22,11 @@ missing=()
 for pkg in "${apt_packages[@]}"; do
     dpkg -s "$pkg" >/dev/null 2>&1 || missing+=("$pkg")
 done
+# node and npm may come from elsewhere than Debian (their own packages conflict): ask for them only
+# when neither program is there.
+if [ "$dev" = 1 ] && ! { command -v node && command -v npm; } >/dev/null 2>&1; then
+    missing+=(nodejs npm)
+fi
 if [ ${#missing[@]} -gt 0 ]; then
     sudo=""
     [ "$(id -u)" -ne 0 ] && sudo="sudo"
@@ -57,7 +62,12 @@ pip_quiet install -e ".[$extras]"
 pip_quiet install --no-deps "pyrender==0.1.45"
 .venv/bin/python -c "import convodrive, OpenGL; assert tuple(map(int, OpenGL.__version__.split('.')[:3])) >= (3, 1, 7), OpenGL.__version__" \
     || { echo "setup: PyOpenGL is older than 3.1.7; MuJoCo's headless GL would break" >&2; exit 1; }
-if [ "$dev" = 1 ]; then
-    npm install --silent --no-audit --no-fund --prefix tools/node gltf-validator@2.0.0-dev.3.10 >/dev/null
+if [ "$dev" = 1 ] && [ ! -d tools/node/node_modules/gltf-validator ]; then
+    if ! npm install --no-audit --no-fund --prefer-offline --prefix tools/node gltf-validator@2.0.0-dev.3.10 \
+        >"$pip_log" 2>&1; then
+        grep -v '^npm warn' "$pip_log" >&2 || true
+        echo "setup: npm install of gltf-validator failed (above)" >&2
+        exit 1
+    fi
 fi
 echo "setup: ready (.venv)"
