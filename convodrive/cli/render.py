@@ -35,7 +35,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, metavar="FILE", help="output .mp4 (default: next to the first clip)")
     p.add_argument("--antialias", action="store_true", help="4x multisampling (slower on CPU)")
     p.add_argument(
-        "--avatar", type=Path, metavar="PATH", help="a .glb/.gltf/.vrm avatar (or a YAML name map) instead of the mannequin"
+        "--avatar",
+        type=Path,
+        metavar="PATH",
+        help="a .glb/.gltf/.vrm avatar (or a YAML name map) instead of the mannequin",
     )
     p.set_defaults(func=run)
 
