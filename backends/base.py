@@ -3,10 +3,15 @@
 The scheduler opens each backend with its target spec and the session, then calls ``send`` once
 per frame from that backend's own worker thread, and ``close`` exactly once at the end, also after
 an error or Ctrl-C. ``close`` must leave every output complete (files renamed into place, servos
-eased to neutral with torque off). ``health`` may be called from another thread at any time.
+eased to neutral with torque off). ``health`` may be called from another thread at any time,
+and so may ``hurry`` (the user's second Ctrl-C).
 A backend declares its options once, as the dataclass named by its ``Options`` attribute
 (``convodrive.plugins.options``); the constructor parses whatever it is given into that, so
 ``self.options`` is always typed and checked.
+
+A backend whose work is heavy (rendering, physics) declares ``may_run_in_process``; in a real-time
+run the pipeline then runs it in a child process of its own (``convodrive.scheduler.process``), so
+its CPU time and its long C calls cannot delay the clock.
 """
 
 from __future__ import annotations
@@ -50,6 +55,11 @@ class RobotOptions(PluginOptions):
     )
 
 
+class BackendFailed(Exception):
+    """Raised by ``send`` when the backend can take no more frames (its process died): the scheduler
+    marks it failed at once instead of retrying."""
+
+
 class Backend(abc.ABC):
     """A body that consumes target frames. Subclasses set the class attributes below."""
 
@@ -57,6 +67,13 @@ class Backend(abc.ABC):
     description: ClassVar[str] = ""
     realtime: ClassVar[bool] = False
     """True for hardware and live windows: paced by the wall clock. False for files."""
+    hardware: ClassVar[bool] = False
+    """True for physical devices (servo heads): a run in which one fails exits non-zero."""
+    may_run_in_process: ClassVar[bool] = False
+    """True when the backend may run in a child process of its own: it shares nothing with the run
+    but its options, spec, session and frames (all picklable); whatever it holds (a GL context, a
+    serial port) it opens and closes there; its results are files and the JSON of ``health`` and
+    ``report``."""
     default_profile: ClassVar[str | None] = None
     """A robot profile under config/robots used when the run names none; None for canonical-only."""
     requires: ClassVar[tuple[str, ...]] = ()
@@ -84,8 +101,13 @@ class Backend(abc.ABC):
     def close(self) -> None:  # noqa: B027 (optional hook; most backends have nothing to finish)
         """Finish every output. Called once, even after errors."""
 
+    def hurry(self) -> None:  # noqa: B027 (optional hook; only slow closes need it)
+        """The user asked to stop now (a second Ctrl-C): make ``close`` quick and safe (servos cut
+        torque instead of easing). Called from another thread; must return at once."""
+
     def health(self) -> dict[str, Any]:
-        """A JSON-able snapshot: at least ``{"status": "ok" | "degraded" | "failed"}``."""
+        """A JSON-able snapshot: at least ``{"status": "ok" | "degraded" | "failed"}``, and when the
+        status is not ok, ``"reason"``: one line a user can act on (no display, servo 4 lost)."""
         return {"status": "ok"}
 
     def report(self) -> dict[str, Any]:

@@ -64,6 +64,8 @@ class DynamixelBackend(ServoBackend):
     name = "dynamixel"
     description = "Dynamixel Protocol 2.0 servo head (XL330, XM430, XL-320, ...) over dynamixel-sdk"
     realtime = True
+    hardware = True
+    may_run_in_process = True
     default_profile = "servo_head"
     requires = ("dynamixel_sdk",)
     extra = "hardware"
@@ -215,7 +217,8 @@ class DynamixelBackend(ServoBackend):
         recovered = sorted(lost_before & set(data))
         if recovered:
             self._event("servo_recovered", ",".join(recovered), "answering again; re-initialised", fault=False)
-            self._setup(recovered)
+            with self._lock:  # not between a frame's goals
+                self._setup(recovered)
 
     def _hw_reconnect(self) -> bool:
         bus = self.bus
@@ -243,6 +246,9 @@ class DynamixelBackend(ServoBackend):
     def _hw_close(self) -> None:
         if self.bus is not None:
             self.bus.disconnect()
+
+    def _hw_bus(self) -> dict[str, Any]:
+        return {"group_read_timeouts": self.bus.group_timeouts if self.bus is not None else 0}
 
     def _hw_health(self) -> dict[str, dict[str, Any]]:
         if self.bus is None:

@@ -18,6 +18,7 @@ Pulse width = ``zero_us + us_per_unit * value``, kept inside ``[min_us, max_us]`
 from __future__ import annotations
 
 import termios
+import threading
 import time
 from collections.abc import Mapping
 from typing import Any
@@ -40,6 +41,9 @@ class MaestroBackend(ServoBackend):
     name = "maestro"
     description = "Hobby servos on a Pololu Maestro USB servo controller (compact protocol, pyserial)"
     realtime = True
+    hardware = True
+    neutral_tolerance_raw = 80.0  # quarter-microseconds: 20 us of pulse width, about 2 degrees
+    may_run_in_process = True
     default_profile = "servo_head"
     requires = ("serial",)
     extra = "hardware"
@@ -56,6 +60,7 @@ class MaestroBackend(ServoBackend):
         self._controller_errors: list[str] = []
         self._last_seen: float | None = None
         self._timeouts = 0
+        self._io_lock = threading.RLock()
 
     # ---------------------------------------------------------------- calibration
     def _hw_calibration(self, spec: TargetSpec) -> RawMap:
@@ -83,16 +88,17 @@ class MaestroBackend(ServoBackend):
 
     def _io(self, request: bytes, reply_len: int = 0) -> bytes:
         """Write a request and read exactly ``reply_len`` bytes (fewer on timeout)."""
-        if self.serial is None:
-            raise PortLost(f"{self.options.port}: not connected")
-        try:
-            if reply_len:
-                self.serial.reset_input_buffer()
-            self.serial.write(request)
-            return self.serial.read(reply_len) if reply_len else b""
-        except SERIAL_ERRORS as exc:
-            self._drop_port()
-            raise PortLost(f"{self.options.port}: {exc}") from None
+        with self._io_lock:  # one exchange at a time: the health poll runs beside the frames
+            if self.serial is None:
+                raise PortLost(f"{self.options.port}: not connected")
+            try:
+                if reply_len:
+                    self.serial.reset_input_buffer()
+                self.serial.write(request)
+                return self.serial.read(reply_len) if reply_len else b""
+            except SERIAL_ERRORS as exc:
+                self._drop_port()
+                raise PortLost(f"{self.options.port}: {exc}") from None
 
     def _drop_port(self) -> None:
         if self.serial is not None:

@@ -99,6 +99,7 @@ class MujocoBackend(Backend):
     name = "mujoco"
     description = "MuJoCo physics: position-controlled humanoid or servo-head twin, offscreen mp4, tracking report"
     realtime = False
+    may_run_in_process = True
     default_profile = "convo_humanoid"
     requires = ("mujoco",)
     extra = "sim"
@@ -418,8 +419,15 @@ class MujocoBackend(Backend):
 
     def health(self) -> dict[str, Any]:
         summary = self._summary()
-        degraded = self.refused > 0 or (self.options.video and self.video_error is not None)
-        return {"status": "degraded" if degraded else "ok", **summary, "video_error": self.video_error}
+        reasons = []
+        if self.options.video and self.video_error is not None:
+            reasons.append(f"no video: {self.video_error}")
+        if self.refused:
+            reasons.append(f"{self.refused} frames refused (outside the joint limits or not finite)")
+        out = {"status": "degraded" if reasons else "ok", **summary, "video_error": self.video_error}
+        if reasons:
+            out["reason"] = "; ".join(reasons)
+        return out
 
     def report(self) -> dict[str, Any]:
         return {

@@ -160,7 +160,10 @@ class RecordBackend(Backend):
         )
 
     def health(self) -> dict[str, Any]:
-        return {"status": "failed" if self._errors else "ok", "frames_received": self._received}
+        out: dict[str, Any] = {"status": "failed" if self._errors else "ok", "frames_received": self._received}
+        if self._errors:
+            out["reason"] = "; ".join(self._errors)
+        return out
 
     def report(self) -> dict[str, Any]:
         return {

@@ -4,7 +4,9 @@ It consumes canonical motion (``frame.takes``: one take, or K takes of the same 
 side by side), poses the built-in mannequin or the user's glTF/VRM avatar, renders offscreen
 (EGL, else OSMesa) and writes ``avatar.mp4`` (H.264, yuv420p, 30 fps, audio muxed) plus
 ``avatar_contact.png``, a contact sheet of evenly spaced frames labelled with who is talking.
-With ``window: true`` and a display it also shows the frames live.
+With ``window: true`` and a display it also shows the frames live; it is then a real-time
+backend, which skips the frames it cannot render in time, and the video keeps its timeline by
+repeating the last image for each skipped frame (counted in the report, which then says degraded).
 
 Options: ``RenderOptions`` below (``convodrive plugins render`` lists them); ``avatar`` names a
 .glb/.gltf/.vrm avatar (or a YAML name map for one) to show instead of the mannequin.
@@ -134,6 +136,7 @@ class RenderBackend(Backend):
     name = "render"
     description = "Mesh avatar preview: headless pyrender (EGL/OSMesa) to mp4 with audio, K takes in a grid"
     realtime = False
+    may_run_in_process = True
     default_profile = None
     requires = ("pyrender", "OpenGL", "trimesh")
     extra = "render"
@@ -162,6 +165,9 @@ class RenderBackend(Backend):
         self._sheet = ContactSheet()
         self._outputs: list[Path] = []
         self._frames = 0
+        self._repeated = 0
+        self._next_index = 0
+        self._last_image: np.ndarray | None = None
         self._takes = 0
         self._errors: list[str] = []
         self._wall = 0.0
@@ -232,6 +238,13 @@ class RenderBackend(Backend):
         if len(takes) != self._takes:  # keep the grid: pad with the first take or drop extras
             takes = (tuple(takes) + (takes[0],) * self._takes)[: self._takes]
         image = self._renderer.render_takes(takes)
+        # Frames skipped in real time still take their place in the video, so it stays as long
+        # as the audio and in step with it: the image before the gap stands in for them.
+        for _ in range(max(frame.index - self._next_index, 0)):
+            self._writer.append(self._last_image if self._last_image is not None else image)
+            self._repeated += 1
+        self._next_index = frame.index + 1
+        self._last_image = image
         self._writer.append(image)
         self._sheet.offer(frame.index, image, takes[0].state)
         if self._window is not None:
@@ -275,8 +288,21 @@ class RenderBackend(Backend):
             self._writer = None
 
     def health(self) -> dict[str, Any]:
-        status = "degraded" if (self._errors or self.window_note) else "ok"
-        return {"status": status, "frames": self._frames, **({"note": self.window_note} if self.window_note else {})}
+        reasons = list(self._errors)
+        if self.window_note:
+            reasons.append(self.window_note)
+        if self._repeated:
+            total = self._frames + self._repeated
+            reasons.append(
+                f"the video repeats the previous image for {self._repeated} of {total} frames "
+                "(rendering fell behind the live window)"
+            )
+        out: dict[str, Any] = {"status": "degraded" if reasons else "ok", "frames": self._frames}
+        if reasons:
+            out["reason"] = "; ".join(reasons)
+        if self.window_note:
+            out["note"] = self.window_note
+        return out
 
     def report(self) -> dict[str, Any]:
         from convodrive.backends.avatar.pyrender_gl import select_platform
@@ -287,6 +313,7 @@ class RenderBackend(Backend):
         out: dict[str, Any] = {
             "outputs": [str(p) for p in self._outputs],
             "frames": self._frames,
+            "frames_repeated": self._repeated,
             "takes": self._takes,
             "grid": [rows, cols],
             "camera": self.camera,

@@ -12,12 +12,17 @@ says, like a real servo), a servo that vanishes and comes back, a port that disa
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
+import os
 import random
+import signal
+import subprocess
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from multiprocessing.connection import Connection
 
 from convodrive.backends.servo import dynamixel_packet as dp
 from convodrive.backends.servo.dynamixel_table import Model, decode, encode
@@ -528,3 +533,43 @@ def start_emulated_head(
     for fault in faults:
         emu.schedule(fault)
     return emu
+
+
+@contextlib.contextmanager
+def emulated_head_process(faults: Iterable[str] = (), ids: Iterable[int] = range(1, 8)) -> Iterator[str]:
+    """An emulated head served by a process of its own, as real servos sit outside the driver's
+    process (so it takes no GIL time from the driver's clock); yields its port path.
+
+    It ignores SIGINT and SIGTERM, so that a driver stopped by Ctrl-C can still ease the head to
+    neutral and switch its torque off; it stops when the context ends or the driver's process dies.
+    ``faults`` use the ``--fault`` grammar (``parse_fault``).
+    """
+    from convodrive.plumbing.child import start_child
+
+    process, conn = start_child(_serve_head, list(ids), [parse_fault(text) for text in faults])
+    try:
+        if not conn.poll(60.0):
+            raise RuntimeError("the emulated servo head did not start within 60 s")
+        yield str(conn.recv())
+    finally:
+        conn.close()  # the emulator's end sees EOF and stops
+        try:
+            process.wait(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+def _serve_head(conn: Connection, ids: list[int], faults: list[Fault]) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    try:  # it stands for servos, which would not share the driver's CPU: answer like them, on time
+        os.nice(-10)
+    except OSError:
+        pass
+    with start_emulated_head(ids, faults=faults) as head:
+        conn.send(head.port)
+        try:
+            conn.recv()
+        except (EOFError, OSError):
+            pass

@@ -2,10 +2,13 @@
 
 ``send`` checks and limits a frame (``safety.SafetyGuard``), converts it to raw units and hands it
 to the subclass's ``_write``. A supervisor thread eases to neutral when frames stop for
-``watchdog_s``, polls health at ``read_rate`` and reconnects a lost port with back-off. ``close``
-(called by the scheduler on every exit path, signals included) eases to neutral over ``ease_s``
-and switches the servos off. Hardware faults never raise out of ``send`` or ``close``: they are
-events, named in ``health()`` and ``report()``, and mark the backend degraded.
+``watchdog_s``, polls health at ``read_rate`` and reconnects a lost port with back-off; its bus
+reads take the bus one exchange at a time, so frames go out between them. ``close`` (called by the
+scheduler on every exit path, signals included) eases to neutral over ``ease_s`` (never longer
+than ``MAX_EASE_S``), reads the servos back to check they reached neutral, and switches them off;
+``hurry`` (a second Ctrl-C) cuts the easing short and switches them off at once. Hardware faults
+never raise out of ``send`` or ``close``: they are events, named in ``health()`` and ``report()``,
+and mark the backend degraded.
 
 A subclass implements the ``_hw_*`` hooks for its bus; everything here is bus-agnostic.
 """
@@ -15,6 +18,7 @@ from __future__ import annotations
 import abc
 import collections
 import logging
+import math
 import re
 import threading
 import time
@@ -35,6 +39,13 @@ _LOG_REPEAT_S = 5.0
 
 MAX_EVENTS = 100
 TICK_HZ = 30.0
+MAX_EASE_S = 10.0
+"""No ease to neutral takes longer than this, whatever ``ease_s`` says: closing must end (the option's
+own range stops there too; this holds whoever made the options)."""
+EASE_SETTLE_S = 3.0
+"""Time beyond the ease for velocity and acceleration limits to bring the command to neutral."""
+NEUTRAL_SETTLE_S = 0.5
+"""How long the servos get to arrive at the neutral goal before their positions are checked."""
 
 
 class PortLost(Exception):
@@ -61,6 +72,8 @@ def open_error(port: str, exc: Exception) -> UserError:
 class ServoBackend(Backend):
     Options = ServoOptions
     options: ServoOptions
+    neutral_tolerance_raw: float = 20.0
+    """How far (raw units) a servo may read from its neutral goal after easing and count as there."""
 
     def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
         super().__init__(options)
@@ -85,6 +98,8 @@ class ServoBackend(Backend):
         self._read_ms: collections.deque[float] = collections.deque(maxlen=10_000)
         self._torque_off: dict[str, bool] = {}
         self._eased = False
+        self._neutral_error: dict[str, float | None] = {}
+        self._hurry = threading.Event()
         self._closed = False
 
     # ---------------------------------------------------------------- hooks
@@ -124,6 +139,10 @@ class ServoBackend(Backend):
 
     def _hw_health(self) -> dict[str, dict[str, Any]]:
         """Per-joint health for ``health()``."""
+        return {}
+
+    def _hw_bus(self) -> dict[str, Any]:
+        """Bus-wide counters for ``report()``."""
         return {}
 
     # ---------------------------------------------------------------- open
@@ -185,18 +204,47 @@ class ServoBackend(Backend):
             self._port_lost(str(exc))
         self._write_ms.append((time.perf_counter() - t0) * 1e3)
 
-    def _run_ease(self, seconds: float) -> None:
-        """Blocking ease from the last command to neutral at 30 Hz (open and close)."""
+    def _run_ease(self, seconds: float) -> bool:
+        """Blocking ease from the last command to neutral at 30 Hz (open and close); True when the
+        command reached neutral. Ends early on ``hurry`` or a lost port, and always within
+        ``MAX_EASE_S + EASE_SETTLE_S``."""
         assert self.guard is not None and self.guard.last is not None
+        seconds = min(max(seconds, 0.0), MAX_EASE_S) if math.isfinite(seconds) else MAX_EASE_S
         ease = Ease(self.guard.last.copy(), self.guard.neutral.copy(), seconds)
         period = 1.0 / TICK_HZ
-        deadline = time.monotonic() + seconds + 3.0  # velocity limits may stretch it; never hang
-        while time.monotonic() < deadline and self._hw_connected():
+        deadline = time.monotonic() + seconds + EASE_SETTLE_S  # velocity limits may stretch it
+        while not self._hurry.is_set() and time.monotonic() < deadline and self._hw_connected():
             now = time.monotonic()
             self._command(self.guard.limit(ease.at(now), period))
             if ease.done(now) and np.allclose(self.guard.last, self.guard.neutral, atol=1e-9):
-                return
-            time.sleep(max(0.0, period - (time.monotonic() - now)))
+                return True
+            self._hurry.wait(max(0.0, period - (time.monotonic() - now)))
+        return False
+
+    def _check_neutral(self) -> bool:
+        """Read the servos back: True when each is within ``neutral_tolerance_raw`` of neutral.
+
+        The ease only says what was commanded; a servo that is overloaded, unpowered or blocked
+        stays where it is. They get ``NEUTRAL_SETTLE_S`` to arrive."""
+        assert self.guard is not None
+        goal = self.guard.to_raw(self.guard.neutral).astype(float)
+        deadline = time.monotonic() + NEUTRAL_SETTLE_S
+        while True:
+            error = np.abs(self._hw_present() - goal)
+            arrived = np.isfinite(error) & (error <= self.neutral_tolerance_raw)
+            if arrived.all() or time.monotonic() >= deadline or self._hurry.wait(1.0 / TICK_HZ):
+                break
+        self._neutral_error = {n: (round(float(e), 1) if np.isfinite(e) else None) for n, e in zip(self.names, error)}
+        for name, e in self._neutral_error.items():
+            if e is None:
+                self._event("not_at_neutral", name, "no position reading after easing")
+            elif e > self.neutral_tolerance_raw:
+                self._event("not_at_neutral", name, f"{e:g} raw units from neutral after easing")
+        return bool(arrived.all())
+
+    def hurry(self) -> None:
+        """Stop easing: ``close`` switches torque off at once, wherever the servos are."""
+        self._hurry.set()
 
     # ---------------------------------------------------------------- supervisor
     def _supervise(self) -> None:
@@ -208,15 +256,19 @@ class ServoBackend(Backend):
                     self._try_reconnect(now)
                     continue
                 self._watch(now)
-                if now >= next_read:
-                    next_read = now + self.read_period
-                    t0 = time.perf_counter()
-                    try:
-                        self._hw_poll()
-                    except PortLost as exc:
-                        self._port_lost(str(exc))
-                        continue
-                    self._read_ms.append((time.perf_counter() - t0) * 1e3)
+            if now < next_read:
+                continue
+            # Outside the lock: a health read (with its retries on a noisy bus) must not hold up
+            # the frames, which the bus interleaves between its exchanges.
+            next_read = now + self.read_period
+            t0 = time.perf_counter()
+            try:
+                self._hw_poll()
+            except PortLost as exc:
+                with self._lock:
+                    self._port_lost(str(exc))
+                continue
+            self._read_ms.append((time.perf_counter() - t0) * 1e3)
 
     def _watch(self, now: float) -> None:
         guard = self.guard
@@ -266,9 +318,11 @@ class ServoBackend(Backend):
                     if not self._hw_connected():
                         self._reconnect_after = 0.0
                         self._try_reconnect(time.monotonic())
-                    if self._hw_connected() and self.guard.last is not None:
+                    if self._hw_connected() and self.guard.last is not None and not self._hurry.is_set():
                         self._run_ease(self.ease_s)
-                        self._eased = self._hw_connected()
+                        self._eased = self._hw_connected() and not self._hurry.is_set() and self._check_neutral()
+                    if self._hurry.is_set():
+                        self._event("hurried", None, "stopped at once: torque cut without easing to neutral")
                     self._torque_off = self._hw_off() if self._hw_connected() else {n: False for n in self.names}
                     off = [n for n, ok in self._torque_off.items() if not ok]
                     if off:
@@ -311,10 +365,12 @@ class ServoBackend(Backend):
             current.append("port_lost")
         if self._counts["frames_refused"]:
             current.append("frames_refused")
+        current = sorted(set(current))
         return {
             "status": "degraded" if current else "ok",
+            **({"reason": _fault_text(current)} if current else {}),
             "port": self.options.port,
-            "active_faults": sorted(set(current)),
+            "active_faults": current,
             "faults": sorted(self._faults),
             "frames": self._counts["frames"],
             "frames_refused": self._counts["frames_refused"],
@@ -328,10 +384,19 @@ class ServoBackend(Backend):
     def report(self) -> dict[str, Any]:
         """After close: ``ok``, ``degraded`` (faults seen, head safe) or ``failed`` (torque off unconfirmed)."""
         torque_off = bool(self.names) and all(self._torque_off.get(n, False) for n in self.names)
-        status = "failed" if not torque_off else ("degraded" if self._faults else "ok")
+        faults = sorted(self._faults)
+        status = "failed" if not torque_off else ("degraded" if faults else "ok")
+        if not torque_off:
+            unconfirmed = [n for n in self.names if not self._torque_off.get(n, False)] or ["every servo"]
+            reason: str | None = f"torque off not confirmed for {', '.join(unconfirmed)}"
+            if faults:
+                reason += f"; {_fault_text(faults)}"
+        else:
+            reason = _fault_text(faults) if faults else None
         return {
             "status": status,
-            "faults": sorted(self._faults),
+            **({"reason": reason} if reason else {}),
+            "faults": faults,
             "port": self.options.port,
             "frames": self._counts["frames"],
             "frames_refused": self._counts["frames_refused"],
@@ -339,13 +404,25 @@ class ServoBackend(Backend):
             "goal_writes": self._counts["goal_writes"],
             "watchdog_trips": self.watchdog.tripped,
             "eased_to_neutral": self._eased,
+            "neutral_error_raw": dict(self._neutral_error),
             "torque_off": torque_off,
             "torque_off_per_joint": dict(self._torque_off),
             "bus_ms": {"write": percentiles(self._write_ms), "health_read": percentiles(self._read_ms)},
+            "bus": self._hw_bus(),
             "clamped_frames": self.guard.clamped if self.guard else 0,
             "servos": self._hw_health(),
             "events": list(self._events),
         }
+
+
+def _fault_text(faults: list[str], limit: int = 6) -> str:
+    """``overload:jaw, servo_lost:eye_tilt`` as ``overload (jaw), servo lost (eye_tilt)``, on one line."""
+    items = []
+    for fault in faults[:limit]:
+        kind, _, where = fault.partition(":")
+        items.append(kind.replace("_", " ") + (f" ({where})" if where else ""))
+    more = len(faults) - limit
+    return ", ".join(items) + (f" and {more} more" if more > 0 else "")
 
 
 def sub_spec(spec: TargetSpec, names: list[str]) -> TargetSpec:

@@ -9,18 +9,14 @@ whose extra is not installed is skipped with a note, never an error.
 from __future__ import annotations
 
 import argparse
-import contextlib
-from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
-from convodrive.cli.drive import print_result
-from convodrive.cli.progress import frame_progress
-from convodrive.pipeline import DEFAULT_GENERATOR, DriveRequest, drive
+from convodrive.cli.drive import exit_code, print_result
+from convodrive.cli.progress import drain_progress, frame_progress
+from convodrive.pipeline import drive
+from convodrive.pipeline.demo import DEMO_BACKENDS, demo_request
 from convodrive.plugins import BACKEND_GROUP, load_plugin
 from convodrive.plumbing.errors import UserError
-
-DEMO_BACKENDS = ("record", "render", "mujoco", "dynamixel")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -48,8 +44,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from convodrive.samples import bundled_dialogue
-
     wanted = [n.strip() for n in args.only.split(",") if n.strip()]
     backends: list[str] = []
     for name in wanted:
@@ -60,30 +54,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"demo: skipping {name}: {exc}")
     if not backends:
         raise UserError("demo: no backend is available")
-    with contextlib.ExitStack() as stack:
-        backend_options: dict[str, dict[str, Any]] = {"render": {"camera": "upper"}} if "render" in backends else {}
-        if "dynamixel" in backends:
-            backend_options["dynamixel"] = stack.enter_context(_emulated_servo_head())
-        request = DriveRequest(
-            audio=bundled_dialogue(),
-            generator=DEFAULT_GENERATOR,
-            backends=tuple(backends),
-            out_dir=args.out,
-            seed=args.seed,
-            backend_options=backend_options,
-        )
-        with frame_progress("demo") as progress:
-            result = drive(request, on_frame=progress)
+    with demo_request(args.out, backends, args.seed) as request, frame_progress("demo") as progress:
+        result = drive(request, on_frame=progress, on_drain=drain_progress(progress, "demo"))
     print_result(result)
-    return 0
-
-
-@contextlib.contextmanager
-def _emulated_servo_head() -> Iterator[dict[str, Any]]:
-    """Start the stateful Dynamixel emulator on a pty and yield the backend options to reach it."""
-    from convodrive.backends.servo.dynamixel_emulator import start_emulated_head
-
-    with start_emulated_head() as head:
-        # The emulator answers from a thread of this busy process (the renderer and MuJoCo share
-        # the GIL), so allow its status packets more time than a real bus would need.
-        yield {"port": head.port, "latency_ms": 40}
+    return exit_code(result)

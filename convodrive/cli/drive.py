@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
 from pathlib import Path
 
 from convodrive.cli.options import add_motion_options, channel_map, int_in, plugin_options
-from convodrive.cli.progress import frame_progress
+from convodrive.cli.progress import drain_progress, frame_progress
 from convodrive.pipeline import MAX_SAMPLES, DriveRequest, DriveResult, drive
 from convodrive.plumbing.logs import FILE_ONLY
 
@@ -73,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
             sys.stderr.flush()
 
     with frame_progress("driving", enabled=request.realtime is not True) as progress:
-        result = drive(request, on_frame=progress, on_start=started)
+        result = drive(request, on_frame=progress, on_start=started, on_drain=drain_progress(progress, "drive"))
     print_result(result)
     return exit_code(result)
 
@@ -90,11 +91,31 @@ def print_result(result: DriveResult) -> None:
     log.info("run summary (report: %s)\n%s", result.report_path, summary, extra=FILE_ONLY)
 
 
+EXIT_HARDWARE_FAILED = 3
+
+
 def exit_code(result: DriveResult) -> int:
-    """2 when the input stopped the run part-way (said in one line on stderr), 130 when interrupted."""
-    if result.report.get("input_error"):
-        message = f"{result.report['input_error']}; the run stopped there"
-        sys.stderr.write(f"convodrive: error: {message}\n")
-        log.error("%s", message, extra=FILE_ONLY)
-        return 2
-    return 130 if result.report["interrupted"] else 0
+    """The run's exit status, each non-zero one said in one line on stderr: 3 when hardware failed
+    (a servo head that never opened, failed, or whose torque-off went unconfirmed), 2 when the
+    input stopped the run part-way; else the shell's 128 + N when signal N stopped it (130 for
+    Ctrl-C, 143 for SIGTERM), else 0."""
+    report = result.report
+    code = 0
+    if report.get("interrupted"):
+        name = report.get("stop_signal") or "SIGINT"
+        code = 128 + int(getattr(signal, name, signal.SIGINT))
+    if report.get("input_error"):
+        _say(f"error: {report['input_error']}; the run stopped there")
+        code = 2
+    failed = report.get("hardware_failed") or {}
+    if failed:
+        names = "; ".join(f"{name}: {reason}" for name, reason in failed.items())
+        _say(f"hardware failed ({names}); exit code {EXIT_HARDWARE_FAILED}")
+        code = EXIT_HARDWARE_FAILED
+    return code
+
+
+def _say(message: str) -> None:
+    sys.stderr.write(f"convodrive: {message}\n")
+    sys.stderr.flush()
+    log.error("%s", message, extra=FILE_ONLY)

@@ -21,7 +21,7 @@ from convodrive.motion.targets import TargetSpec
 from convodrive.pipeline.config import RunConfig, check_sections
 from convodrive.plugins import BACKEND_GROUP, load_plugin
 from convodrive.plugins.options import check_options, merge_options
-from convodrive.plumbing.errors import InputFileError, UserError
+from convodrive.plumbing.errors import InputFileError, UserError, error_line
 from convodrive.scheduler import Route
 
 log = logging.getLogger(__name__)
@@ -72,6 +72,15 @@ def make_backends(
     return planned
 
 
+def run_in_own_processes(planned: list[PlannedBackend]) -> None:
+    """Move each backend that may run in a process of its own there (before it opens)."""
+    from convodrive.scheduler.process import ProcessBackend
+
+    for item in planned:
+        if item.backend.may_run_in_process:
+            item.backend = ProcessBackend(item.backend)
+
+
 def open_backends(planned: list[PlannedBackend], session: Session) -> tuple[list[Route], dict[str, str]]:
     """Open each backend. A user mistake aborts the run (closing what opened); any other fault at
     open fails that backend alone, and the run goes on without it."""
@@ -87,7 +96,7 @@ def open_backends(planned: list[PlannedBackend], session: Session) -> tuple[list
             except UserError:
                 raise
             except Exception as exc:  # hardware or driver fault: this backend only
-                failed[item.name] = f"{exc.__class__.__name__}: {exc}"
+                failed[item.name] = error_line(exc)
                 log.error("%s: failed to open (%s); the run goes on without it", item.name, failed[item.name])
                 continue
             log.info("%s: open", item.name)

@@ -18,13 +18,20 @@ from convodrive.audio.source import (
 )
 from convodrive.backends.base import Session
 from convodrive.generators.base import Generator, take_seed
-from convodrive.pipeline.backends import close_all, make_backends, open_backends, safe_outputs
+from convodrive.pipeline.backends import (
+    close_all,
+    make_backends,
+    open_backends,
+    run_in_own_processes,
+    safe_outputs,
+)
 from convodrive.pipeline.config import RunConfig, load_run_config
 from convodrive.plugins import GENERATOR_GROUP, load_plugin
 from convodrive.plugins.options import PluginOptions, merge_options
 from convodrive.plumbing.errors import UserError
 from convodrive.plumbing.outdir import OutputFolder
 from convodrive.scheduler import MonotonicClock, Scheduler, SimulatedClock, build_report, write_report
+from convodrive.scheduler.loop import DrainCallback
 
 DEFAULT_GENERATOR = "procedural"
 MAX_SAMPLES = 16
@@ -45,6 +52,9 @@ class DriveRequest:
     realtime: bool | None = None
     """True: the wall clock; False: a simulated clock; None: real time if any backend is real-time
     (hardware must be paced at 30 fps), else offline."""
+    own_processes: bool | None = None
+    """Run the backends that may (render, mujoco) in child processes of their own: True, False, or
+    None for "when the run is real time", where their work would otherwise delay the clock."""
     channels: ChannelMap | None = None
     generator_options: dict[str, Any] = dataclasses.field(default_factory=dict)
     backend_options: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
@@ -78,6 +88,7 @@ def drive(
     request: DriveRequest,
     on_frame: Callable[[int, int], None] | None = None,
     on_start: Callable[[bool], None] | None = None,
+    on_drain: DrainCallback | None = None,
 ) -> DriveResult:
     """Run one session end to end and write its report. ``UserError`` for any user mistake found
     before the run; one found during it (audio that stops decoding) ends the run early, and the
@@ -91,6 +102,8 @@ def drive(
     planned = make_backends(request.backends, config, request.backend_options)
     generator, gen_options = make_generator(request.generator, config, request.generator_options)
     realtime = request.realtime if request.realtime is not None else any(p.backend.realtime for p in planned)
+    if request.own_processes if request.own_processes is not None else realtime:
+        run_in_own_processes(planned)
     seeds = [take_seed(request.seed, i) for i in range(request.samples)]
 
     out = OutputFolder(request.out_dir, request.out_label)
@@ -124,6 +137,7 @@ def drive(
                 audio_seconds=source.duration,
                 on_frame=frame_done,
                 on_start=(lambda: on_start(realtime)) if on_start is not None else None,
+                on_drain=on_drain,
             )
         except BaseException:  # e.g. Ctrl-C before the scheduler took the backends over
             close_all(routes)
@@ -145,7 +159,8 @@ def drive(
             "outputs": [str(p) for p in outputs],
             "warnings": list(generator_notes.get("warnings", [])),
         }
-        report = build_report(result, context, failed_at_open)
+        hardware = [p.name for p in planned if p.backend.hardware]
+        report = build_report(result, context, failed_at_open, hardware)
         report_path, summary_path = write_report(report, out_dir, request.report_name)
     return DriveResult(report, report_path, summary_path, outputs)
 

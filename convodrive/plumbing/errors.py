@@ -25,3 +25,14 @@ def os_reason(exc: OSError) -> str:
     """``permission denied`` rather than ``[Errno 13] Permission denied: '/x'``, for one-line messages."""
     reason = exc.strerror or exc.__class__.__name__
     return reason[:1].lower() + reason[1:]
+
+
+class RemoteError(Exception):
+    """An exception raised in another process (a backend's own), known by its one-line text."""
+
+
+def error_line(exc: BaseException, limit: int = 300) -> str:
+    """``"OSError: port vanished"`` on one line; an error from another process reads as it did there."""
+    text = " ".join(str(exc).split())
+    line = text if isinstance(exc, RemoteError) else f"{exc.__class__.__name__}: {text}"
+    return line if len(line) <= limit else line[: limit - 1] + "…"

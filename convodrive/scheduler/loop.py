@@ -1,7 +1,8 @@
 """The scheduler's loop (DESIGN, "Scheduler"): one clock, a producer, one worker per backend.
 
-- The generator runs in a producer thread that fills a bounded buffer, so generation runs ahead of
-  the clock but never without bound.
+- The generator runs in a producer thread that also retargets and fills a bounded buffer with
+  finished target frames, so generation runs ahead of the clock but never without bound, and the
+  clock thread does nothing but wait for deadlines and hand frames out.
 - Frame k is due at ``k / fps`` on the run's clock (``convodrive.scheduler.clock``). A frame that
   reaches the clock after its deadline goes out at once and the next deadlines stay where they
   were, so lateness never accumulates into drift.
@@ -10,11 +11,17 @@
   stalls the clock or the others; a file backend gets a non-blocking backlog, so it receives every
   frame, late if it must. On a simulated clock every backend gets a small blocking queue.
 - SIGINT and SIGTERM stop the clock; every backend is still closed, from its own worker, so its
-  outputs end complete.
+  outputs end complete (file backends first take the frames already made). A second signal, or
+  one that comes after the clock has ended, stops at once: waiting frames are dropped and each
+  backend is told to ``hurry`` (servos cut torque instead of easing).
+- Heavy backends may run in processes of their own (``convodrive.scheduler.process``); the loop
+  does not know: to it they are backends like the others.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import logging
 import queue
 import signal
 import threading
@@ -28,9 +35,9 @@ import numpy as np
 from convodrive import FPS
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.targets import TargetFrame
-from convodrive.plumbing.errors import UserError
+from convodrive.plumbing.errors import UserError, error_line
 from convodrive.scheduler.clock import Clock
-from convodrive.scheduler.priority import realtime_priority
+from convodrive.scheduler.priority import clock_thread_priority, realtime_priority
 from convodrive.scheduler.producer import FrameSource, Producer
 from convodrive.scheduler.report import RunResult
 from convodrive.scheduler.route import Route
@@ -39,6 +46,12 @@ from convodrive.scheduler.workers import BackendWorker, OnSent
 
 _NO_VALUES = np.zeros(0)
 _NO_VALUES.setflags(write=False)
+
+log = logging.getLogger(__name__)
+
+DrainCallback = Callable[[int, int, list[str]], None]
+"""Called about 4 times a second after the clock ends, while backends finish: (frames done, frames
+to do, names of the backends still at work)."""
 
 
 class Scheduler:
@@ -57,6 +70,7 @@ class Scheduler:
         on_frame: Callable[[int], None] | None = None,
         on_start: Callable[[], None] | None = None,
         on_sent: OnSent | None = None,
+        on_drain: DrainCallback | None = None,
         start_delay: float = 0.05,
     ) -> None:
         self.routes = list(routes)
@@ -67,10 +81,16 @@ class Scheduler:
         self.on_frame = on_frame
         self.on_start = on_start
         self.on_sent = on_sent
+        self.on_drain = on_drain
         self.start_delay = start_delay
-        self._producer = Producer(source, buffer_frames)
+        self._producer = Producer(source, self._target_frames, buffer_frames)
         self._stop = threading.Event()
         self._interrupted = False
+        self._hurried = False
+        self.stop_signal: str | None = None
+        """The signal that stopped the run (``"SIGINT"``, ``"SIGTERM"``), if one did."""
+        self._workers: list[BackendWorker] = []
+        self._clock_done = False
         self._started = False
         self.clock_priority = "normal"
         self._clock_seconds = 0.0
@@ -80,10 +100,17 @@ class Scheduler:
         self._interrupted = True
         self._stop.set()
 
+    def hurry(self) -> None:
+        """Stop at once: drop the frames backends have not taken yet, and cut their closing short."""
+        self._hurried = True
+        self.request_stop()
+        for w in self._workers:
+            w.hurry()
+
     def run(self) -> RunResult:
         previous = self._install_signal_handlers()
         paced = self.clock.paced
-        workers = [BackendWorker(r, paced, self._elapsed, self.on_sent) for r in self.routes]
+        workers = self._workers = [BackendWorker(r, paced, self._elapsed, self.on_sent) for r in self.routes]
         wall_start = time.monotonic()
         jitter: list[float] = []
         late = 0
@@ -95,7 +122,11 @@ class Scheduler:
                 for w in workers:
                     w.start()
                 self._producer.start()
-                frames, jitter, late, drift = self._clock_loop(workers)
+                with clock_thread_priority(paced) as policy:
+                    if policy:
+                        self.clock_priority = f"{policy}, {self.clock_priority}"
+                    frames, jitter, late, drift = self._clock_loop(workers)
+                self._clock_done = True
             error = self._producer.error
             if isinstance(error, UserError):  # the input ended the run (audio that stopped decoding)
                 input_error = str(error)
@@ -103,13 +134,10 @@ class Scheduler:
                 raise error
         finally:
             self._producer.stop_event.set()
+            self._clock_done = True
             for w in workers:
                 w.slot.close()
-            for w in workers:
-                if w.is_alive() or w.ident is not None:
-                    w.join()
-                else:  # never started (interrupted at once): its backend still must close
-                    w.close_backend()
+            self._join(workers)
             self.clock.close()
             self._restore_signal_handlers(previous)
         wall = time.monotonic() - wall_start
@@ -125,12 +153,28 @@ class Scheduler:
             audio_seconds=self.audio_seconds if self.audio_seconds is not None else frames / self.fps,
             drift_frames=drift,
             interrupted=self._interrupted,
+            stop_signal=self.stop_signal,
+            retarget_seconds=self._producer.prepare_seconds,
             backends=[w.stats for w in workers],
             backend_reports={w.stats.name: _safe_call(w.route.backend.report) for w in workers},
             backend_health={w.stats.name: _safe_call(w.route.backend.health) for w in workers},
             clock_priority=self.clock_priority,
             input_error=input_error,
         )
+
+    def _join(self, workers: list[BackendWorker]) -> None:
+        """Wait for every worker to finish its backlog and close its backend, reporting progress."""
+        for w in workers:
+            if w.ident is None:  # never started (interrupted at once): its backend still must close
+                w.close_backend()
+        busy = [w for w in workers if w.ident is not None]
+        total = sum(w.slot.pending() for w in busy) + len(busy)  # + the frame or close in hand
+        while busy:
+            busy[0].join(timeout=0.25)
+            busy = [w for w in busy if w.is_alive()]
+            if self.on_drain is not None and busy:
+                left = sum(w.slot.pending() for w in busy) + len(busy)
+                self.on_drain(max(total - left, 0), total, [w.stats.name for w in busy])
 
     def _elapsed(self) -> float:
         return self.clock.now() if self._started else 0.0
@@ -162,7 +206,7 @@ class Scheduler:
                     clock.wait_until(deadline)
                 last_dispatch = clock.now()
                 jitter.append((last_dispatch - deadline) * 1000.0)
-            self._dispatch(index, item, workers)
+            self._dispatch(item, workers, time.monotonic() if clock.paced else 0.0)
             if self.on_frame is not None:
                 self.on_frame(index)
             index += 1
@@ -184,12 +228,12 @@ class Scheduler:
                 continue
         return END
 
-    def _dispatch(self, index: int, takes: tuple[MotionFrame, ...], workers: list[BackendWorker]) -> None:
+    def _target_frames(self, index: int, takes: tuple[MotionFrame, ...]) -> list[TargetFrame]:
+        """Frame ``index`` for each route, retargeted once per retarget key (the producer's thread)."""
         time_s = index / self.fps
-        dispatched = time.monotonic() if self.clock.paced else 0.0
         values_by_key: dict[str, np.ndarray] = {}
-        for w in workers:
-            route = w.route
+        frames = []
+        for route in self.routes:
             if route.retarget is None:
                 values = _NO_VALUES
             else:
@@ -197,7 +241,13 @@ class Scheduler:
                 if key not in values_by_key:
                     values_by_key[key] = route.retarget(takes[0])
                 values = values_by_key[key]
-            w.slot.put(TargetFrame(index=index, time=time_s, values=values, takes=takes, dispatched=dispatched))
+            frames.append(TargetFrame(index=index, time=time_s, values=values, takes=takes))
+        return frames
+
+    @staticmethod
+    def _dispatch(frames: list[TargetFrame], workers: list[BackendWorker], dispatched: float) -> None:
+        for w, frame in zip(workers, frames):
+            w.slot.put(dataclasses.replace(frame, dispatched=dispatched) if dispatched else frame)
 
     def _install_signal_handlers(self) -> dict[int, Any]:
         if threading.current_thread() is not threading.main_thread():
@@ -205,6 +255,14 @@ class Scheduler:
         previous: dict[int, Any] = {}
 
         def handler(signum: int, _frame: FrameType | None) -> None:
+            name = signal.Signals(signum).name
+            if self._stop.is_set() or self._clock_done:
+                if not self._hurried:
+                    log.warning("%s again: stopping at once (waiting frames dropped, servo torque cut)", name)
+                    self.hurry()
+                return
+            self.stop_signal = name
+            log.warning("%s: stopping; finishing the outputs (send it again to stop at once)", name)
             self.request_stop()
 
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -221,4 +279,4 @@ def _safe_call(fn: Callable[[], dict[str, Any]]) -> dict[str, Any]:
     try:
         return fn()
     except Exception as exc:
-        return {"error": f"{exc.__class__.__name__}: {exc}"}
+        return {"error": error_line(exc)}

@@ -1,11 +1,16 @@
-"""The generator's thread: it runs ahead of the clock into a bounded buffer, and times the generator."""
+"""The generator's thread: it runs ahead of the clock into a bounded buffer.
+
+It also retargets: each frame leaves here as the finished target frames, one per route, so the
+clock thread only waits and hands them out. Retargeters are stateful filters that must see every
+frame once and in order, which this one thread guarantees.
+"""
 
 from __future__ import annotations
 
 import queue
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 from convodrive.motion.clip import MotionFrame
@@ -14,19 +19,25 @@ from convodrive.scheduler.slots import END
 FrameSource = Iterator[tuple[MotionFrame, ...]]
 """Yields, for each frame index in order, one MotionFrame per take."""
 
+Prepare = Callable[[int, tuple[MotionFrame, ...]], Any]
+"""Turns frame ``index``'s takes into what the clock hands out (the routes' target frames)."""
+
 
 class Producer(threading.Thread):
-    """Pulls frames from the generator into a bounded buffer and times the generator."""
+    """Pulls frames from the generator, prepares them, and fills a bounded buffer; times both."""
 
-    def __init__(self, source: FrameSource, buffer_frames: int) -> None:
+    def __init__(self, source: FrameSource, prepare: Prepare, buffer_frames: int) -> None:
         super().__init__(name="generator", daemon=True)
         self.source = source
+        self.prepare = prepare
         self.buffer: queue.Queue[Any] = queue.Queue(maxsize=buffer_frames)
         self.generator_seconds = 0.0
+        self.prepare_seconds = 0.0
         self.error: BaseException | None = None
         self.stop_event = threading.Event()
 
     def run(self) -> None:
+        index = 0
         try:
             while not self.stop_event.is_set():
                 start = time.perf_counter()
@@ -36,7 +47,11 @@ class Producer(threading.Thread):
                     break
                 finally:
                     self.generator_seconds += time.perf_counter() - start
-                self._put(takes)
+                start = time.perf_counter()
+                item = self.prepare(index, takes)
+                self.prepare_seconds += time.perf_counter() - start
+                self._put(item)
+                index += 1
         except BaseException as exc:  # handed to the clock thread, which re-raises it
             self.error = exc
         finally:

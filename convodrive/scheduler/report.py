@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +37,9 @@ class RunResult:
     clock_priority: str = "normal"
     input_error: str | None = None
     """Set when the input failed part-way (audio that stopped decoding): the run ended there."""
+    stop_signal: str | None = None
+    """The signal that interrupted the run, if one did."""
+    retarget_seconds: float = 0.0
 
 
 def _percentiles(values: list[float], scale: float = 1.0) -> dict[str, float] | None:
@@ -54,9 +58,16 @@ def _rate(frames: int, seconds: float) -> float | None:
 
 
 def build_report(
-    result: RunResult, context: dict[str, Any], failed_at_open: dict[str, str] | None = None
+    result: RunResult,
+    context: dict[str, Any],
+    failed_at_open: dict[str, str] | None = None,
+    hardware: Iterable[str] = (),
 ) -> dict[str, Any]:
-    """Turn a scheduler result plus run context (audio, generator, outputs) into the report dict."""
+    """Turn a scheduler result plus run context (audio, generator, outputs) into the report dict.
+
+    ``hardware`` names the backends that are physical devices: ``hardware_failed`` lists those
+    that failed (at open, during the run, or closing with torque off unconfirmed), and a run with
+    any exits non-zero."""
     backends: dict[str, Any] = {}
     for stats in result.backends:
         backends[stats.name] = {
@@ -74,12 +85,18 @@ def build_report(
         }
     for name, problem in (failed_at_open or {}).items():
         backends[name] = {"failed": True, "open_error": problem, "frames_sent": 0, "frames_dropped": result.frames}
+    hardware_failed = {}
+    for name in hardware:
+        state, reason = backend_state(backends.get(name, {}))
+        if state == "FAILED":
+            hardware_failed[name] = reason
     gen_rtf = result.audio_seconds / result.generator_seconds if result.generator_seconds > 0 else None
     report = {
         "convodrive_version": __version__,
         "mode": result.mode,
         "interrupted": result.interrupted,
         "input_error": result.input_error,
+        "stop_signal": result.stop_signal,
         "frames": result.frames,
         "expected_frames": result.expected_frames,
         "wall_seconds": round(result.wall_seconds, 3),
@@ -93,7 +110,9 @@ def build_report(
         "clock_priority": result.clock_priority,
         "drift_frames": round(result.drift_frames, 3),
         "generator_real_time_factor": round(gen_rtf, 1) if gen_rtf else None,
+        "retarget_ms_per_frame": round(1000 * result.retarget_seconds / result.frames, 3) if result.frames else None,
         "backends": backends,
+        "hardware_failed": hardware_failed,
     }
     report.update(context)
     return report
@@ -124,14 +143,37 @@ def summarize(report: dict[str, Any]) -> str:
             f"generator {report.get('generator', {}).get('name', '?')}: {report['generator_real_time_factor']}x real time"
         )
     for name, b in report["backends"].items():
-        state = "FAILED" if b.get("failed") else b.get("health", {}).get("status", "ok")
-        detail = b.get("open_error") or b.get("last_error") or ""
+        state, detail = backend_state(b)
         lines.append(
             f"  {name:<10} {state:<9} sent {b.get('frames_sent', 0):>6}  dropped {b.get('frames_dropped', 0):>6}  "
             f"errors {b.get('errors', 0):>4}" + (f"  ({detail})" if detail else "")
         )
     lines.extend(report.get("summary_lines", []))  # what the kind of run adds (a live run's figures)
     return "\n".join(lines)
+
+
+def backend_state(entry: dict[str, Any]) -> tuple[str, str]:
+    """("ok" | "degraded" | "FAILED", why) for one backend of a report: the worse of its health
+    and its final report, and a reason a user can act on (no display, which servo was lost)."""
+    health = entry.get("health") or {}
+    final = entry.get("report") or {}
+    statuses = {str(health.get("status", "ok")), str(final.get("status", "ok"))}
+    failed = bool(entry.get("failed")) or "failed" in statuses
+    reason = (
+        entry.get("open_error")
+        or (entry.get("last_error") if entry.get("failed") else "")
+        or (final.get("reason") if final.get("status") in ("failed", "degraded") else "")
+        or health.get("reason")
+        or final.get("error")
+        or entry.get("close_error")
+        or entry.get("last_error")
+        or ""
+    )
+    if failed:
+        return "FAILED", str(reason)
+    if "degraded" in statuses:
+        return "degraded", str(reason or "no reason given")
+    return "ok", str(reason)
 
 
 def write_report(report: dict[str, Any], out_dir: Path, name: str = "run_report") -> tuple[Path, Path]:

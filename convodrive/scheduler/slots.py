@@ -55,6 +55,17 @@ class DropOldestSlot:
                 self._cond.wait()
             return self._items.popleft() if self._items else END
 
+    def pending(self) -> int:
+        """Frames waiting to be read."""
+        with self._cond:
+            return len(self._items)
+
+    def discard(self) -> None:
+        """Drop every waiting frame (the user asked to stop at once); they count as dropped."""
+        with self._cond:
+            self.dropped += len(self._items)
+            self._items.clear()
+
 
 class BlockingSlot:
     """A small FIFO for offline runs: every frame is delivered; a slow backend slows the run."""
@@ -71,3 +82,9 @@ class BlockingSlot:
 
     def get(self) -> Any:
         return self._q.get()
+
+    def pending(self) -> int:
+        return self._q.qsize()
+
+    def discard(self) -> None:
+        """Nothing to drop: at most ``size`` frames wait here, and the end marker must stay."""

@@ -9,7 +9,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from convodrive.backends.base import BackendFailed
 from convodrive.motion.targets import TargetFrame
+from convodrive.plumbing.errors import error_line
 from convodrive.plumbing.stats import Histogram
 from convodrive.scheduler.route import Route
 from convodrive.scheduler.slots import END, BlockingSlot, DropOldestSlot
@@ -80,10 +82,10 @@ class BackendWorker(threading.Thread):
                 except Exception as exc:  # a backend fault degrades this backend only
                     consecutive += 1
                     self.stats.errors += 1
-                    self.stats.last_error = f"{exc.__class__.__name__}: {exc}"
+                    self.stats.last_error = error_line(exc)
                     if consecutive == 1:  # the first of a run of errors; the report counts them all
                         log.warning("%s: frame %d: %s", backend.name, item.index, self.stats.last_error)
-                    if consecutive >= MAX_CONSECUTIVE_ERRORS:
+                    if consecutive >= MAX_CONSECUTIVE_ERRORS or isinstance(exc, BackendFailed):
                         self.stats.failed = True
                         self._event("failed", self.stats.last_error)
                 finally:
@@ -100,11 +102,19 @@ class BackendWorker(threading.Thread):
         if self._on_sent is not None:
             self._on_sent(self.stats.name, frame, done)
 
+    def hurry(self) -> None:
+        """Stop at once: drop the frames still waiting, and let the backend cut its close short."""
+        self.slot.discard()
+        try:
+            self.route.backend.hurry()
+        except Exception as exc:
+            self._event("hurry-error", error_line(exc))
+
     def close_backend(self) -> None:
         try:
             self.route.backend.close()
         except Exception as exc:
-            self.stats.close_error = f"{exc.__class__.__name__}: {exc}"
+            self.stats.close_error = error_line(exc)
             self._event("close-error", self.stats.close_error)
         self.stats.dropped += self.slot.dropped
 

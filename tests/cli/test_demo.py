@@ -54,6 +54,9 @@ def test_demo_drives_every_body_and_reports(tmp_path: Path) -> None:
     backends = report["backends"]
     for name in ("record", "render", "mujoco"):
         assert backends[name]["frames_sent"] == 750, f"file outputs get every frame ({name})"
+    for name in ("render", "mujoco", "dynamixel"):  # heavy and hardware backends: out of the clock's process
+        process = backends[name]["report"]["process"]
+        assert process["exit"] == "exit code 0" and process["pid"], name
     head = backends["dynamixel"]
     assert head["frames_sent"] >= 0.9 * 750 and head["errors"] == 0
     assert head["report"]["torque_off"] is True

@@ -127,7 +127,7 @@ def test_signal_ends_the_run_with_complete_outputs(tmp_path: Path, sig: int) -> 
     time.sleep(1.0)
     proc.send_signal(sig)
     stdout, stderr = proc.communicate(timeout=60)
-    assert proc.returncode == 130, stderr
+    assert proc.returncode == 128 + sig, stderr  # the shell's convention: 130 for SIGINT, 143 for SIGTERM
     assert "Traceback" not in stderr
     report = json.loads((out_dir / "run_report.json").read_text())
     assert report["interrupted"] is True
@@ -135,3 +135,76 @@ def test_signal_ends_the_run_with_complete_outputs(tmp_path: Path, sig: int) -> 
     clip = load_clip(out_dir / "motion.npz")
     assert clip.num_frames == report["frames"]
     assert not list(out_dir.glob(".*")), "no temporary files are left behind"
+
+
+def _video_frames(path: Path) -> int:
+    out = subprocess.run(
+        [
+            "ffprobe",
+            "-v",
+            "error",
+            "-count_frames",
+            "-select_streams",
+            "v:0",
+            "-show_entries",
+            "stream=nb_read_frames",
+            "-of",
+            "csv=p=0",
+            str(path),
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    return int(out.stdout.strip())
+
+
+def test_ctrl_c_to_the_process_group_leaves_every_process_backend_complete(tmp_path: Path) -> None:
+    """Ctrl-C in a terminal reaches the whole process group, the backends' own processes too: they
+    must leave it to the run, which stops the clock, lets them take the frames already made, and
+    closes them; the videos end complete, one frame per frame of the run."""
+    path = tmp_path / "long.wav"
+    sr = 16_000
+    t = np.arange(sr * 30) / sr
+    sf.write(path, np.stack([0.3 * np.sin(2 * np.pi * 150 * t)] * 2, axis=1).astype(np.float32), sr)
+    out_dir = tmp_path / "o"
+    args = ["drive", str(path), "--realtime", "--backend", "record,render,mujoco", "--out", str(out_dir)]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "convodrive.cli.main", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,  # its own process group, as a shell gives a foreground job
+    )
+    assert proc.stderr is not None
+    assert "real time" in proc.stderr.readline()
+    time.sleep(2.0)
+    os.killpg(proc.pid, signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=180)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr
+    report = json.loads((out_dir / "run_report.json").read_text())
+    assert report["interrupted"] is True and report["stop_signal"] == "SIGINT"
+    frames = report["frames"]
+    assert 30 < frames < 900
+    for name, video in (("render", "avatar.mp4"), ("mujoco", "mujoco.mp4")):
+        entry = report["backends"][name]
+        assert entry["report"]["process"]["exit"] == "exit code 0", "it ran in its own process and closed"
+        assert entry["frames_sent"] == frames and entry["errors"] == 0 and not entry["close_error"]
+        assert _video_frames(out_dir / video) == frames, video
+    assert load_clip(out_dir / "motion.npz").num_frames == frames
+    assert not list(out_dir.glob(".*")), "no temporary files are left behind"
+    leftover = subprocess.run(["pgrep", "-s", str(proc.pid)], capture_output=True, text=True).stdout.split()
+    assert not leftover, "no process of the run outlives it"
+
+
+def test_a_degraded_backend_says_why(tone_dialogue: Path, tmp_path: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    out = subprocess.run(
+        [sys.executable, "-m", "convodrive.cli.main", "drive", str(tone_dialogue), "--backend", "render",
+         "-B", "render.window=true", "-B", "render.resolution=64x64", "--out", str(tmp_path / "o")],
+        capture_output=True, text=True, env=env, timeout=300,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    line = next(line for line in out.stdout.splitlines() if line.strip().startswith("render"))
+    assert "degraded" in line and "no display" in line, line

@@ -68,3 +68,21 @@ def test_faults_during_a_run_are_named_in_the_run_report(tmp_path: Path) -> None
     assert {"overload:jaw", "servo_lost:eye_tilt"} <= set(report["faults"]), report["faults"]
     assert report["status"] == "degraded" and report["torque_off"] and not any(torque)
     assert "degraded" in {e["status"] for e in entry["health_events"]}
+
+
+def test_the_summary_names_the_lost_servo(tmp_path: Path) -> None:
+    """Servo 6 is gone for the whole run: the head fails (its torque-off cannot be confirmed), and
+    the summary line says which servo and why."""
+    with start_emulated_head(faults=[parse_fault("vanish:6@0+600")]) as emu:
+        request = DriveRequest(
+            audio=bundled_dialogue(),
+            backends=("dynamixel",),
+            out_dir=tmp_path,
+            realtime=False,
+            backend_options={"dynamixel": {"port": emu.port, "ease_s": 0.2}},
+        )
+        result = drive(request)
+    line = next(line for line in result.summary_path.read_text().splitlines() if "dynamixel" in line)
+    assert "FAILED" in line and "torque off not confirmed for eye_tilt" in line, line
+    assert "servo lost (eye_tilt)" in line, line
+    assert result.report["hardware_failed"] == {"dynamixel": line[line.index("(") + 1 : -1]}

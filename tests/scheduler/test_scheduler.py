@@ -5,6 +5,7 @@ from __future__ import annotations
 import threading
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from bench.bench_scheduler import run_bench
@@ -116,3 +117,46 @@ def test_short_benchmark_counts() -> None:
     assert out["frames_lost"]["fast_a"] == 0 and out["frames_lost"]["fast_b"] == 0
     assert out["frames_lost"]["slow"] > 100
     assert abs(out["drift_frames"]) < 1.0
+
+
+def test_retargeting_runs_once_a_frame_in_order_off_the_clock_thread(tmp_path: Path) -> None:
+    """Retargeters are stateful filters: each frame once, in order; and never on the clock's thread."""
+    calls: list[tuple[str, float]] = []
+
+    def retarget(frame):
+        calls.append((threading.current_thread().name, frame.time))
+        return np.array([frame.time])
+
+    got: dict[str, list[float]] = {"a": [], "b": []}
+
+    class Keeper(CountingBackend):
+        def send(self, frame):
+            got[self.name].append(float(frame.values[0]))
+
+    a, b = Keeper({"name": "a"}), Keeper({"name": "b"})
+    routes = [Route(r.backend, retarget, "one profile") for r in _open([a, b], tmp_path, False)]
+    Scheduler(neutral_frames(30), routes, clock=MonotonicClock()).run()
+    times = [i / 30 for i in range(30)]
+    assert [t for _, t in calls] == pytest.approx(times), "once per frame for both routes, in order"
+    assert {name for name, _ in calls} == {"generator"}, "the producer's thread retargets, not the clock's"
+    assert got["a"] == got["b"] == pytest.approx(times)
+
+
+def test_backends_finishing_after_the_clock_report_their_progress(tmp_path: Path) -> None:
+    """A video lags a real-time run; once the clock ends, the caller hears how much is left."""
+    writer = SlowBackend({"name": "writer", "delay": 0.06})
+    writer.realtime = False  # a file backend: it gets every frame, late
+    calls: list[tuple[int, int, list[str]]] = []
+    result = Scheduler(
+        neutral_frames(30),
+        _open([writer], tmp_path, False),
+        clock=MonotonicClock(),
+        on_drain=lambda done, total, names: calls.append((done, total, names)),
+    ).run()
+    assert writer.indices == list(range(30)) and result.frames == 30
+    assert len(calls) >= 2, "about four times a second while the writer catches up"
+    assert all(names == ["writer"] for _, _, names in calls)
+    totals = {total for _, total, _ in calls}
+    assert len(totals) == 1 and totals.pop() >= 5
+    done = [d for d, _, _ in calls]
+    assert done == sorted(done) and done[-1] > done[0]

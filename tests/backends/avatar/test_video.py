@@ -263,3 +263,32 @@ def test_live_window_shows_the_frames_on_a_display(tmp_path, monkeypatch, x_disp
     assert len(shown) > 4, "the window shows the rendered avatar, not a blank image"
     assert backend.health()["status"] == "ok" and "note" not in backend.health()
     assert (tmp_path / "avatar.mp4").is_file(), "the video is still written beside the window"
+
+
+@pytest.mark.gl
+@pytest.mark.ffmpeg
+@pytest.mark.xvfb
+def test_a_live_window_run_keeps_every_frame_of_the_video_or_says_it_did_not(tmp_path, monkeypatch, x_display, speech):
+    """With a window the renderer is real time and skips what it cannot render in time; the mp4
+    still has one frame per frame of the run (the last image repeated) and the report says how
+    many repeat and that render is degraded. A heavy setting makes the skips certain."""
+    from convodrive.pipeline import DriveRequest, drive
+
+    monkeypatch.setenv("DISPLAY", x_display)
+    options = {"window": True, "resolution": "768x768", "antialias": True, "camera": "face"}
+    result = drive(
+        DriveRequest(audio=speech, backends=("render",), out_dir=tmp_path, backend_options={"render": options})
+    )
+    report = result.report
+    assert report["mode"] == "realtime"
+    render = report["backends"]["render"]
+    frames = report["frames"]
+    assert render["frames_dropped"] > 0, "768x768 with 4x MSAA cannot render at 30 fps on a CPU"
+    info = _probe(tmp_path / "avatar.mp4")
+    video = next(s for s in info["streams"] if s["codec_type"] == "video")
+    assert int(video["nb_frames"]) == frames, "one video frame per frame of the run"
+    assert render["report"]["frames_repeated"] == render["frames_dropped"]
+    assert render["report"]["frames"] + render["report"]["frames_repeated"] == frames
+    assert render["health"]["status"] == "degraded"
+    assert f"repeats the previous image for {render['frames_dropped']} of {frames} frames" in render["health"]["reason"]
+    assert "render     degraded" in result.summary_path.read_text()

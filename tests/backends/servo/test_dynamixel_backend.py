@@ -71,8 +71,8 @@ def test_trajectory_reaches_the_wire_within_one_tick() -> None:
         backend.open(SPEC, session())
         first = len(emu.goal_log)
         drive(backend, frames)
+        backend.close()  # after it, the emulator has surely parsed the last frame's SYNC_WRITE
         sent = emu.goal_log[first:]
-        backend.close()
         report = backend.report()
     for servo_id in range(1, 8):
         got = [g.tick for g in sent if g.servo_id == servo_id][: len(frames)]
