@@ -207,8 +207,8 @@ def test_the_only_servo_head_failing_at_open_fails_the_run(
     monkeypatch.setattr(planning, "load_plugin", lambda group, name: BrokenHead)
     result = drive(DriveRequest(audio=_tone(tmp_path / "t.wav", 1.0), backends=("fast",), out_dir=tmp_path / "o"))
     assert result.report["hardware_failed"] == {"fast": "OSError: USB adapter stopped answering"}
-    assert exit_code(result.report) == 3
     print_result(result)
+    assert exit_code(result) == 3
     last = capsys.readouterr().err.strip().splitlines()[-1]
     assert last == "convodrive: hardware failed (fast: OSError: USB adapter stopped answering); exit code 3"
 
