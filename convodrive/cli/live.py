@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from convodrive.cli.drive import print_result
+from convodrive.cli.drive import exit_code, print_result
 from convodrive.cli.options import add_motion_options, plugin_options
 from convodrive.pipeline import LiveRequest, live
 
@@ -110,4 +110,4 @@ def run(args: argparse.Namespace) -> int:
 
     result = live(request, on_start=started)
     print_result(result)
-    return 130 if result.report["interrupted"] else 0
+    return exit_code(result)

@@ -34,7 +34,13 @@ from convodrive.eval.sync import LevelMeter, level_db, mouth_onsets, pair_onsets
 from convodrive.motion.channels import BLENDSHAPE_INDEX
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.targets import TargetFrame
-from convodrive.pipeline.backends import close_all, make_backends, open_backends, safe_outputs
+from convodrive.pipeline.backends import (
+    close_all,
+    make_backends,
+    open_backends,
+    run_in_own_processes,
+    safe_outputs,
+)
 from convodrive.pipeline.config import load_run_config
 from convodrive.pipeline.run import DEFAULT_GENERATOR, DriveResult, make_generator
 from convodrive.plumbing.atomic import atomic_path
@@ -86,6 +92,7 @@ def live(request: LiveRequest, on_start: Callable[[], None] | None = None) -> Dr
     config = load_run_config(request.config)
     generator, gen_options = make_generator(request.generator, config, request.generator_options)
     planned = make_backends(request.backends, config, request.backend_options)
+    run_in_own_processes(planned)  # a live run is paced: heavy and hardware backends must not shake it
     if request.partner == "none" and request.self_voice == "none" and request.seconds is None:
         raise UserError("--self none and --partner none: nothing to listen to (give one, or --seconds)")
     need = (generator.lookahead_frames + 1) / FPS
@@ -138,7 +145,7 @@ def live(request: LiveRequest, on_start: Callable[[], None] | None = None) -> Dr
         "outputs": [str(p) for p in outputs],
         "summary_lines": summary_lines(live_figures),
     }
-    report = build_report(result, context, failed_at_open)
+    report = build_report(result, context, failed_at_open, [p.name for p in planned if p.backend.hardware])
     report_path, summary_path = write_report(report, out_dir)
     return DriveResult(report, report_path, summary_path, outputs)
 
