@@ -139,3 +139,37 @@ def tone_dialogue(tmp_path: Path) -> Path:
     path = tmp_path / "tones.wav"
     sf.write(path, np.stack([left, right], axis=1).astype(np.float32), sr, subtype="PCM_16")
     return path
+
+
+@pytest.fixture(scope="session")
+def plugin_site(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """tests/plugin_pkg installed into a folder of its own: put it on PYTHONPATH to use its plugins."""
+    target = tmp_path_factory.mktemp("site")
+    build = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--no-deps",
+            "--no-build-isolation",
+            "--no-index",
+            "--target",
+            str(target),
+            str(REPO / "tests" / "plugin_pkg"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert build.returncode == 0, build.stderr
+    return target
+
+
+@pytest.fixture(scope="session")
+def tiny_corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Six 4 s conversations, two takes each, two speaker styles (tests/corpora.py)."""
+    from tests.corpora import write_tiny_corpus
+
+    return write_tiny_corpus(tmp_path_factory.mktemp("corpus") / "tiny")

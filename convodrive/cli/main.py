@@ -14,10 +14,9 @@ import logging
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NoReturn
 
 from convodrive import __version__
-from convodrive.plumbing.errors import UserError
+from convodrive.plumbing.errors import EXIT_USER_ERROR, OneLineParser, UserError
 from convodrive.plumbing.logs import FILE_ONLY, configure_logging
 
 log = logging.getLogger("convodrive.cli")
@@ -34,17 +33,9 @@ COMMAND_MODULES: tuple[str, ...] = (
     "convodrive.cli.emulate",
     "convodrive.cli.servo",
     "convodrive.cli.corpus",
+    "convodrive.cli.train",
+    "convodrive.cli.export",
 )
-
-EXIT_USER_ERROR = 2
-
-
-class OneLineParser(argparse.ArgumentParser):
-    """argparse prints usage plus an error; we print the error alone, on one line."""
-
-    def error(self, message: str) -> NoReturn:
-        sys.stderr.write(f"{self.prog}: error: {message} (see --help)\n")
-        raise SystemExit(EXIT_USER_ERROR)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -7,6 +7,12 @@ message must name the file or option and the problem.
 
 from __future__ import annotations
 
+import argparse
+import sys
+from typing import NoReturn
+
+EXIT_USER_ERROR = 2
+
 
 class UserError(Exception):
     """A problem with the user's input, reported as one line, never as a traceback."""
@@ -36,3 +42,12 @@ def error_line(exc: BaseException, limit: int = 300) -> str:
     text = " ".join(str(exc).split())
     line = text if isinstance(exc, RemoteError) else f"{exc.__class__.__name__}: {text}"
     return line if len(line) <= limit else line[: limit - 1] + "…"
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse prints usage plus an error; we print the error alone, on one line, exit code 2."""
+
+    def error(self, message: str) -> NoReturn:
+        sys.stderr.write(f"{self.prog}: error: {message} (see --help)
+")
+        raise SystemExit(EXIT_USER_ERROR)

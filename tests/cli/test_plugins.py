@@ -3,38 +3,11 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-from tests.conftest import REPO, run_cli
-
-
-@pytest.fixture(scope="module")
-def plugin_site(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    target = tmp_path_factory.mktemp("site")
-    build = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "install",
-            "--quiet",
-            "--no-deps",
-            "--no-build-isolation",
-            "--no-index",
-            "--target",
-            str(target),
-            str(REPO / "tests" / "plugin_pkg"),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=180,
-    )
-    assert build.returncode == 0, build.stderr
-    return target
+from tests.conftest import run_cli
 
 
 @pytest.mark.build_tools

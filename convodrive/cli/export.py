@@ -1,0 +1,30 @@
+"""``convodrive export CHECKPOINT --out MODEL_DIR [--int8]``: ONNX graphs, model.json, model card."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "export",
+        help="export a training checkpoint to an ONNX model folder (parity-checked)",
+        description="Export CHECKPOINT (a checkpoint folder, or a run folder: its latest) to an ONNX model folder.",
+    )
+    p.add_argument("checkpoint", type=Path, help="checkpoint folder (runs/.../checkpoints/step-N) or run folder")
+    p.add_argument("--out", type=Path, required=True, help="model folder to write (replaced if it is one)")
+    p.add_argument("--int8", action="store_true", help="quantise MatMuls to int8 (dynamic) and record the cost")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from convodrive.training.export import export_model
+
+    result = export_model(args.checkpoint, args.out, int8=args.int8)
+    worst = max(e for errs in result.parity.values() for e in errs.values())
+    print(f"exported {len(result.parity)} graph(s) to {result.folder} (parity max abs err {worst:.2g})")
+    if result.int8:
+        for name, cost in result.int8.items():
+            print(f"  int8 {name}: max abs {cost['max_abs_err']:.3g}, relative RMS {cost['relative_rms_err']:.3g}")
+    return 0

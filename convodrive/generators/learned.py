@@ -1,0 +1,152 @@
+"""The base of learned generators: ONNX model folders run in overlapping windows, streaming.
+
+A subclass names its window plan and runs one window: given the window's audio features (both
+voices' log-mel, exactly as the corpus stored them) and, after the first window, the ``context``
+frames it must continue from, it returns the window's normalised motion features for each take.
+This base does the rest: it loads and verifies the model folder (``convodrive.neural``), computes
+the log-mel features in streaming blocks (``convodrive.audio.logmel``, chunk-invariant), cuts the
+stream into windows (``neural.windows.WindowPlan``), pads the last window with silence, seeds
+each window from (seed, window index), and decodes features to canonical frames
+(``motion.representation``). Everything depends only on the audio and the seed, never on how the
+audio was chunked, so ``stream == generate`` for a seed, and K takes share one feature pass.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from collections.abc import Iterable, Iterator, Sequence
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from convodrive.audio.features import frame_edge
+from convodrive.audio.logmel import LogMelStream, MelSpec, log_mel
+from convodrive.audio.source import ANALYSIS_RATE, AudioChunk, motion_frames_for
+from convodrive.generators.base import Generator
+from convodrive.motion import representation as rep
+from convodrive.motion.clip import MotionFrame
+from convodrive.neural import Graph, ModelFolder, SessionOptions, load_model_folder
+from convodrive.neural.windows import WindowPlan
+from convodrive.plugins.options import PluginOptions, option, parse_options
+from convodrive.plumbing.errors import InputFileError, UserError
+
+
+@dataclasses.dataclass(frozen=True)
+class LearnedOptions(PluginOptions):
+    """Options every learned generator has; a subclass's Options extends this dataclass."""
+
+    model: str = option("", help="model folder (convodrive export); empty: the weights shipped with the generator")
+    threads: int = option(1, low=1, high=64, help="ONNX Runtime intra-op threads per graph")
+    device: str = option("auto", choices=("auto", "cpu", "cuda"), help="where graphs run (auto: CUDA when present)")
+
+
+class LearnedGenerator(Generator):
+    Options: ClassVar[type[LearnedOptions]] = LearnedOptions
+    model_kind: ClassVar[str] = ""
+    """The ``model`` a folder's model.json must name (the recipe that trained it)."""
+    shipped_model: ClassVar[Path | None] = None
+    """The folder of the weights shipped in the package, used when ``model`` is empty."""
+    extra: ClassVar[str] = "neural"
+    requires: ClassVar[tuple[str, ...]] = ("onnxruntime",)
+
+    def __init__(self, options: dict[str, Any] | None = None) -> None:
+        super().__init__(options)
+        self.settings = parse_options(self.Options, self.options, plugin=f"generator {self.name}")
+        path = self.settings.model or self.shipped_model
+        if not path:
+            raise UserError(f"generator '{self.name}' needs a model folder: -G model=DIR")
+        self.folder: ModelFolder = load_model_folder(path)
+        if self.model_kind and self.folder.model != self.model_kind:
+            raise InputFileError(
+                self.folder.path,
+                f"holds a '{self.folder.model}' model, generator '{self.name}' reads '{self.model_kind}'",
+            )
+        features = self.folder.spec.get("features", {})
+        layout = features.get("layout", {})
+        if layout.get("version") != rep.LAYOUT_VERSION or layout.get("dim") != rep.FEATURE_DIM:
+            raise InputFileError(
+                self.folder.path,
+                f"feature layout {layout.get('version')} ({layout.get('dim')} dims) is not this convodrive's {rep.LAYOUT_VERSION} ({rep.FEATURE_DIM})",
+            )
+        self.mel_spec = MelSpec.from_dict(features.get("corpus", {}).get("audio_features", {}))
+        norm = self.folder.arrays("normalisation.npz")
+        self.stats = rep.FeatureStats(norm["mean"], norm["std"], np.ones(rep.FEATURE_DIM, np.int64))
+        self.session_options = SessionOptions(threads=self.settings.threads, device=self.settings.device)
+        self.plan = self.window_plan()
+        self._silence = log_mel(np.zeros((2 * self.mel_spec.window, 2), np.float32), 1, self.mel_spec)[0]
+
+    # -- what a subclass provides ----------------------------------------------------------------
+    @abc.abstractmethod
+    def window_plan(self) -> WindowPlan: ...
+
+    @abc.abstractmethod
+    def run_window(
+        self, audio: np.ndarray, context: np.ndarray | None, rngs: Sequence[np.random.Generator]
+    ) -> np.ndarray:
+        """(K, window, FEATURE_DIM) normalised motion for K takes, from ``audio`` (window, 2, bands)
+        log-mel and ``context`` (K, context, FEATURE_DIM) normalised motion (None for window 0)."""
+
+    def graph(self, name: str) -> Graph:
+        """A session on one of the folder's graphs, with this generator's thread and device settings."""
+        return Graph(self.folder.graph_path(name), self.session_options)
+
+    # -- the contract ---------------------------------------------------------------------------
+    @property
+    def lookahead_frames(self) -> int:
+        audio_frames = -(-self.mel_spec.lookahead_samples // int(frame_edge(1)))
+        return self.plan.lookahead_frames + audio_frames
+
+    def stream(self, chunks: Iterable[AudioChunk], seed: int = 0) -> Iterator[MotionFrame]:
+        for takes in self.stream_takes(chunks, [seed]):
+            yield takes[0]
+
+    def stream_takes(self, chunks: Iterable[AudioChunk], seeds: Sequence[int]) -> Iterator[tuple[MotionFrame, ...]]:
+        plan, k = self.plan, len(seeds)
+        mel = LogMelStream(2, self.mel_spec)
+        audio = np.zeros((0, 2, self.mel_spec.bands), np.float32)
+        motion = np.zeros((k, 0, rep.FEATURE_DIM), np.float32)
+        emitted, index, received = 0, 0, 0
+
+        def run(index: int, window_audio: np.ndarray) -> None:
+            nonlocal motion
+            start = plan.start(index)
+            context = motion[:, start : start + plan.context] if index > 0 and plan.context else None
+            rngs = [np.random.default_rng([int(s) & 0xFFFFFFFF, index]) for s in seeds]
+            out = np.asarray(self.run_window(window_audio, context, rngs), np.float32)
+            keep = plan.context if index > 0 else 0
+            motion = np.concatenate([motion[:, : start + keep], out[:, keep:]], axis=1)
+
+        def frames(stop: int) -> Iterator[tuple[MotionFrame, ...]]:
+            nonlocal emitted
+            if stop <= emitted:
+                return
+            clips = [rep.decode(self.stats.denormalise(motion[t, emitted:stop])) for t in range(k)]
+            for i in range(stop - emitted):
+                frames_i = []
+                for clip in clips:
+                    f = clip.frame(i)
+                    f.time = (emitted + i) / 30.0
+                    frames_i.append(f)
+                yield tuple(frames_i)
+            emitted = stop
+
+        for chunk in chunks:
+            received += len(chunk)
+            audio = np.concatenate([audio, mel.push(np.stack([chunk.self_voice, chunk.other_voice], axis=1))])
+            while len(audio) >= plan.start(index) + plan.window:
+                run(index, audio[plan.start(index) : plan.start(index) + plan.window])
+                index += 1
+                yield from frames(plan.start(index - 1) + plan.window)
+        total = motion_frames_for(received / ANALYSIS_RATE)
+        audio = np.concatenate([audio, mel.finish(total)])[:total] if total > len(audio) else audio[:total]
+        while emitted < total:
+            start = plan.start(index)
+            window_audio = audio[start : start + plan.window]
+            if len(window_audio) < plan.window:
+                pad = np.repeat(self._silence[None], plan.window - len(window_audio), axis=0)
+                window_audio = np.concatenate([window_audio, pad])
+            run(index, window_audio)
+            index += 1
+            yield from frames(min(total, start + plan.window))

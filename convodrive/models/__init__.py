@@ -1,0 +1,1 @@
+"""torch networks, one readable file each (training and export only; a run never imports them)."""

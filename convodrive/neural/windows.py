@@ -1,0 +1,42 @@
+"""How a learned generator cuts a stream into model calls: fixed windows that overlap by a context.
+
+Window i covers frames ``[i*hop, i*hop + window)`` with ``hop = window - context``. Its first
+``context`` frames are the previous window's output, given to the model as known motion (the
+papers' continuation by inpainting); it generates the rest. So once window i has run, every frame
+before ``i*hop + window`` is final, and a frame waits at most ``window - context - 1`` frames of
+audio beyond itself: the generator's declared look-ahead (plus its audio features' own).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+
+@dataclasses.dataclass(frozen=True)
+class WindowPlan:
+    window: int
+    context: int = 0
+
+    def __post_init__(self) -> None:
+        if self.window < 1 or not 0 <= self.context < self.window:
+            raise ValueError(
+                f"a window plan needs window >= 1 and 0 <= context < window, got {self.window}, {self.context}"
+            )
+
+    @property
+    def hop(self) -> int:
+        return self.window - self.context
+
+    def start(self, index: int) -> int:
+        return index * self.hop
+
+    @property
+    def lookahead_frames(self) -> int:
+        """Frames of audio past a frame that its window needs (the worst case: a window's first new frame)."""
+        return self.window - self.context - 1
+
+    def windows_for(self, num_frames: int) -> int:
+        """Windows that cover ``num_frames`` frames (the last may run past the end, padded)."""
+        if num_frames <= self.window:
+            return 1
+        return 1 + -(-(num_frames - self.window) // self.hop)

@@ -1,0 +1,282 @@
+"""``convodrive export CHECKPOINT --out MODEL_DIR [--int8]``: a checkpoint to an ONNX model folder.
+
+Each graph a recipe names is exported with the dynamo exporter and dynamic axes, then run in ONNX
+Runtime against torch at every parity size (exporters can silently bake an example's shape into
+a graph; a size it was not traced at shows that). A graph off by more than the tolerance stops the
+export. ``--int8`` quantises the MatMul nodes of each graph dynamically (weights int8, activations
+quantised at run time; convolutions stay float, as quantised convs can be far slower on a CPU)
+and measures what that costs against the float graph. The folder is written beside its
+destination and renamed into place, so it is complete or absent.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import io
+import json
+import logging
+import shutil
+import subprocess
+import tempfile
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from convodrive.neural.folder import MODEL_FORMAT, MODEL_FORMAT_VERSION, MODEL_JSON, sha256_file
+from convodrive.neural.session import Graph, SessionOptions
+from convodrive.plumbing.errors import UserError
+from convodrive.training.checkpoint import Checkpoint, load_checkpoint, load_weights
+from convodrive.training.recipe import DataSpec, GraphSpec, Recipe
+from convodrive.training.registry import get_recipe
+
+PARITY_TOLERANCE = 1e-4
+OPSET = 18
+
+
+@dataclasses.dataclass
+class ExportResult:
+    folder: Path
+    parity: dict[str, dict[str, float]]
+    int8: dict[str, dict[str, float]] | None
+
+
+def restore(checkpoint: str | Path) -> tuple[Checkpoint, Recipe, Any, DataSpec, torch.nn.Module]:
+    """The checkpoint's recipe, model config, data spec and network with its weights, in eval mode."""
+    ckpt = load_checkpoint(checkpoint)
+    recipe = get_recipe(ckpt.state["recipe"])
+    config = recipe.model_config(ckpt.state["model_config"])
+    spec = ckpt.data_spec()
+    net = recipe.build_model(config, spec, ckpt.state["stage"])
+    load_weights(net, ckpt)
+    net.eval()
+    return ckpt, recipe, config, spec, net
+
+
+@contextlib.contextmanager
+def _quiet() -> Any:
+    """The exporter prints progress and warnings meant for its developers; keep a user's terminal clean."""
+    loggers = [
+        logging.getLogger(n) for n in ("", "torch.onnx", "torch.export", "torch._dynamo", "onnxscript", "torch.fx")
+    ]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):
+            warnings.simplefilter("ignore")
+            yield
+    finally:
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)
+
+
+def export_graph(spec: GraphSpec, path: Path, trace_size: int = 5) -> None:
+    example = spec.example(trace_size, np.random.default_rng(0))
+    dims: dict[str, torch.export.Dim] = {}
+    dynamic_shapes: dict[str, dict[int, Any] | None] = {}
+    for name in spec.input_names:
+        axes = spec.dynamic.get(name)
+        if axes:
+            dynamic_shapes[name] = {
+                a: dims.setdefault(d, torch.export.Dim(d, min=1, max=1 << 20)) for a, d in axes.items()
+            }
+        else:
+            dynamic_shapes[name] = None
+    with _quiet(), torch.no_grad():
+        torch.onnx.export(
+            spec.module,
+            example,
+            str(path),
+            input_names=list(spec.input_names),
+            output_names=list(spec.output_names),
+            dynamo=True,
+            dynamic_shapes=dynamic_shapes,
+            opset_version=OPSET,
+            external_data=False,
+            optimize=True,
+        )
+
+
+def _torch_outputs(spec: GraphSpec, inputs: tuple[torch.Tensor, ...]) -> list[np.ndarray]:
+    with torch.no_grad():
+        out = spec.module(*inputs)
+    outs = out if isinstance(out, (tuple, list)) else (out,)
+    return [o.detach().cpu().numpy() for o in outs]
+
+
+def parity(spec: GraphSpec, path: Path, sizes: tuple[int, ...] | None = None, seed: int = 1) -> dict[str, float]:
+    """Max abs error of ONNX Runtime against torch at each size, keyed ``size=N``."""
+    graph = Graph(path, SessionOptions(threads=1, device="cpu"))
+    result = {}
+    rng = np.random.default_rng(seed)
+    for size in sizes or spec.parity_sizes:
+        inputs = spec.example(size, rng)
+        expected = _torch_outputs(spec, inputs)
+        try:
+            got = graph({n: t.detach().cpu().numpy() for n, t in zip(spec.input_names, inputs)})
+        except Exception as exc:  # onnxruntime's own error types: a shape the graph refuses
+            first = str(exc).splitlines()[0][:160]
+            raise UserError(
+                f"export of graph '{spec.name}': ONNX Runtime rejects size {size}, a shape baked in at export? ({first})"
+            ) from None
+        errs = []
+        for name, want in zip(spec.output_names, expected):
+            if got[name].shape != want.shape:
+                raise UserError(
+                    f"export of graph '{spec.name}': output {name} has shape {got[name].shape} at size {size}, torch gives {want.shape}"
+                )
+            errs.append(float(np.max(np.abs(got[name].astype(np.float64) - want))) if want.size else 0.0)
+        result[f"size={size}"] = max(errs)
+    return result
+
+
+def quantise_int8(src: Path, dst: Path) -> None:
+    from onnxruntime.quantization import QuantType, quantize_dynamic
+
+    with _quiet():
+        quantize_dynamic(str(src), str(dst), op_types_to_quantize=["MatMul"], weight_type=QuantType.QInt8)
+
+
+def int8_cost(spec: GraphSpec, float_path: Path, int8_path: Path, seed: int = 2) -> dict[str, float]:
+    """How far the int8 graph's outputs land from the float graph's, on the parity inputs."""
+    fg, qg = (Graph(p, SessionOptions(threads=1, device="cpu")) for p in (float_path, int8_path))
+    rng = np.random.default_rng(seed)
+    abs_err, ref_sq, err_sq = 0.0, 0.0, 0.0
+    for size in spec.parity_sizes:
+        feed = {n: t.numpy() for n, t in zip(spec.input_names, spec.example(size, rng))}
+        a, b = fg(feed), qg(feed)
+        for name in spec.output_names:
+            d = b[name].astype(np.float64) - a[name]
+            abs_err = max(abs_err, float(np.abs(d).max()) if d.size else 0.0)
+            err_sq += float((d**2).sum())
+            ref_sq += float((a[name].astype(np.float64) ** 2).sum())
+    return {"max_abs_err": abs_err, "relative_rms_err": float(np.sqrt(err_sq / max(ref_sq, 1e-30)))}
+
+
+def _git_commit() -> str:
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10, cwd=Path(__file__).parent
+        )
+        return out.stdout.strip() if out.returncode == 0 else "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def _prepare_destination(out: Path) -> None:
+    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / MODEL_JSON).exists())):
+        raise UserError(f"--out {out}: exists and is not a model folder; choose a new or empty folder")
+
+
+def export_model(
+    checkpoint: str | Path, out: str | Path, int8: bool = False, tolerance: float = PARITY_TOLERANCE
+) -> ExportResult:
+    out = Path(out)
+    ckpt, recipe, config, spec, net = restore(checkpoint)
+    _prepare_destination(out)
+    stage = ckpt.state["stage"]
+    graphs = list(recipe.export_graphs(net, config, spec, stage))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        parity_report: dict[str, dict[str, float]] = {}
+        int8_report: dict[str, dict[str, float]] = {}
+        graph_meta: dict[str, dict[str, Any]] = {}
+        for g in graphs:
+            float_path = tmp / f"{g.name}.onnx"
+            export_graph(g, float_path)
+            parity_report[g.name] = parity(g, float_path)
+            worst = max(parity_report[g.name].values())
+            if not worst <= tolerance:
+                raise UserError(
+                    f"export of graph '{g.name}' failed the parity check: ONNX Runtime differs from torch by {worst:.3g} (> {tolerance:g}) at {parity_report[g.name]}"
+                )
+            file = float_path.name
+            if int8:
+                q_path = tmp / f"{g.name}.int8.onnx"
+                quantise_int8(float_path, q_path)
+                int8_report[g.name] = int8_cost(g, float_path, q_path)
+                float_path.unlink()
+                file = q_path.name
+            graph_meta[g.name] = {
+                "file": file,
+                "inputs": list(g.input_names),
+                "outputs": list(g.output_names),
+                "dynamic_axes": {n: {str(a): d for a, d in axes.items()} for n, axes in g.dynamic.items()},
+                "description": g.description,
+            }
+        for name, arrays in recipe.export_arrays(net, config, spec).items():
+            np.savez(tmp / name, **arrays)
+        files = {p.name: sha256_file(p) for p in sorted(tmp.iterdir()) if p.is_file()}
+        meta = {
+            "format": MODEL_FORMAT,
+            "version": MODEL_FORMAT_VERSION,
+            "model": recipe.name,
+            "preset": ckpt.state["preset"],
+            "stage": stage,
+            "architecture": ckpt.state["model_config"],
+            "features": spec.info,
+            "training": {
+                "corpus": ckpt.state.get("corpus"),
+                "steps": ckpt.step,
+                "train_config": ckpt.state.get("train_config"),
+                "world_size": ckpt.state.get("world_size"),
+                "validation": ckpt.state.get("validation", {}),
+                "checkpoint": str(ckpt.path),
+                "commit": _git_commit(),
+                "torch": torch.__version__,
+            },
+            "graphs": graph_meta,
+            "parity": {"tolerance": tolerance, "max_abs_err": parity_report},
+            "int8": {"quantised": "MatMul, dynamic", "cost": int8_report} if int8 else None,
+            "files": files,
+        }
+        (tmp / MODEL_JSON).write_text(json.dumps(meta, indent=2), encoding="utf-8")
+        (tmp / "MODEL_CARD.md").write_text(model_card(recipe, config, spec, meta), encoding="utf-8")
+        tmp.chmod(0o755)
+        if out.exists():
+            shutil.rmtree(out)
+        tmp.rename(out)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp)
+    return ExportResult(out, parity_report, int8_report or None)
+
+
+def model_card(recipe: Recipe, config: Any, spec: DataSpec, meta: dict[str, Any]) -> str:
+    training = meta["training"]
+    corpus = spec.info.get("corpus", {}) if isinstance(spec.info.get("corpus"), dict) else {}
+    lines = [
+        f"# Model card: {recipe.name} ({meta['preset']} preset, stage {meta['stage']})",
+        "",
+        recipe.card(config, spec),
+        "",
+        "## Training",
+        f"- corpus: `{training['corpus']}`"
+        + (f" ({corpus.get('name', '')}, {corpus.get('hours', '?')} h)" if corpus else ""),
+        f"- steps: {training['steps']}, global batch {training['train_config'].get('batch_size')}, processes {training['world_size']}",
+        f"- commit: `{training['commit']}`, torch {training['torch']}",
+        f"- licence of the weights: {corpus.get('licence', 'that of the training corpus')}",
+        "",
+        "## Validation",
+        *(f"- {k}: {v:.4g}" for k, v in training["validation"].items()),
+        "",
+        "## Export",
+        "- graphs: " + ", ".join(f"`{g['file']}`" for g in meta["graphs"].values()),
+        f"- parity, ONNX Runtime against torch (max abs error, tolerance {meta['parity']['tolerance']:g}):",
+        *(
+            f"  - {g}: " + ", ".join(f"{s} {e:.2g}" for s, e in errs.items())
+            for g, errs in meta["parity"]["max_abs_err"].items()
+        ),
+    ]
+    if meta["int8"]:
+        lines.append("- int8 (dynamic, MatMul only); cost against the float graph:")
+        lines += [
+            f"  - {g}: max abs {c['max_abs_err']:.3g}, relative RMS {c['relative_rms_err']:.3g}"
+            for g, c in meta["int8"]["cost"].items()
+        ]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,134 @@
+"""What a trainable model tells the one training loop: its data, network, loss, validation, export.
+
+A model issue adds a network file in ``convodrive/models/``, a ``Recipe`` subclass (usually in
+``training/recipes/``), one line in ``registry.py``, and a generator that reads the exported folder.
+The loop, checkpoints, DDP, logging, resumption and export are shared.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+
+from convodrive.training.config import Preset, TrainConfig
+
+Batch = dict[str, torch.Tensor]
+
+
+@dataclasses.dataclass
+class DataSpec:
+    """What a model learned from, kept in its checkpoint and model folder.
+
+    ``info`` is JSON (feature layout, corpus name and id, dimensions); ``arrays`` are NumPy arrays
+    (normalisation statistics, masks) stored beside it in ``data.npz``.
+    """
+
+    info: dict[str, Any]
+    arrays: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+
+
+class Examples(abc.ABC):
+    """Training examples, addressed by index. The loop draws indices; the recipe makes tensors."""
+
+    @abc.abstractmethod
+    def __len__(self) -> int: ...
+
+    @abc.abstractmethod
+    def batch(self, indices: np.ndarray) -> Batch:
+        """CPU tensors of the examples ``indices`` (the loop moves them to the device)."""
+
+
+@dataclasses.dataclass
+class TrainingData:
+    train: Examples
+    val: Examples | None
+    spec: DataSpec
+
+
+@dataclasses.dataclass(frozen=True)
+class GraphSpec:
+    """One ONNX graph to export, and how to feed it for the parity check.
+
+    ``example(size, rng)`` returns the inputs at one size (a sequence length, or a number of
+    windows); export checks torch against ONNX Runtime at every size in ``parity_sizes``, so a
+    shape the exporter baked in is caught. ``dynamic`` maps an input name to {axis: axis name}.
+    """
+
+    name: str
+    module: torch.nn.Module
+    input_names: tuple[str, ...]
+    output_names: tuple[str, ...]
+    example: Callable[[int, np.random.Generator], tuple[torch.Tensor, ...]]
+    dynamic: dict[str, dict[int, str]]
+    parity_sizes: tuple[int, ...] = (1, 7, 33)
+    description: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class StepContext:
+    """Per-step facts a loss may use. ``generator`` is seeded by (seed, step, rank): resumable."""
+
+    step: int
+    rank: int
+    world_size: int
+    generator: torch.Generator
+
+
+class Recipe(abc.ABC):
+    name: ClassVar[str]
+    description: ClassVar[str]
+    ModelConfig: ClassVar[type]
+    """A frozen dataclass of the network's hyper-parameters."""
+    presets: ClassVar[dict[str, Preset]]
+    default_preset: ClassVar[str]
+    stages: ClassVar[tuple[str, ...]] = ("main",)
+    """Models trained in stages (e.g. VQ, then predictor) name them; ``--stage`` picks one."""
+
+    def model_config(self, overrides: dict[str, Any]) -> Any:
+        from convodrive.training.config import with_overrides
+
+        return with_overrides(self.ModelConfig(), overrides, f"model '{self.name}'")
+
+    def train_config(self, overrides: dict[str, Any]) -> TrainConfig:
+        from convodrive.training.config import with_overrides
+
+        return with_overrides(TrainConfig(), overrides, f"model '{self.name}' training")
+
+    @abc.abstractmethod
+    def load_data(self, corpus: Path, config: Any, stage: str) -> TrainingData:
+        """The train (and val) examples of ``corpus``; ``UserError`` for a corpus it cannot use."""
+
+    @abc.abstractmethod
+    def build_model(self, config: Any, spec: DataSpec, stage: str) -> torch.nn.Module: ...
+
+    @abc.abstractmethod
+    def loss(
+        self, model: torch.nn.Module, batch: Batch, ctx: StepContext
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """The scalar to minimise and named figures to log (detached or not; the loop detaches)."""
+
+    def validate(self, model: torch.nn.Module, data: TrainingData, config: Any, stage: str) -> dict[str, float]:
+        """Figures on the validation examples (no gradients). Default: the mean loss."""
+        if data.val is None or len(data.val) == 0:
+            return {}
+        idx = np.arange(min(len(data.val), 256))
+        ctx = StepContext(0, 0, 1, torch.Generator().manual_seed(0))
+        loss, _ = self.loss(model, data.val.batch(idx), ctx)
+        return {"loss": float(loss)}
+
+    @abc.abstractmethod
+    def export_graphs(self, model: torch.nn.Module, config: Any, spec: DataSpec, stage: str) -> Sequence[GraphSpec]: ...
+
+    def export_arrays(self, model: torch.nn.Module, config: Any, spec: DataSpec) -> dict[str, dict[str, np.ndarray]]:
+        """Extra ``.npz`` files for the model folder, by file name. Default: the data spec's arrays."""
+        return {"normalisation.npz": dict(spec.arrays)} if spec.arrays else {}
+
+    def card(self, config: Any, spec: DataSpec) -> str:
+        """Markdown paragraphs for the model card: what the model is for and how it was made."""
+        return self.description

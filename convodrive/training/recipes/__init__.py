@@ -1,0 +1,1 @@
+"""Training recipes, one module per registered model (see ``convodrive.training.registry``)."""

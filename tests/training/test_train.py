@@ -1,0 +1,103 @@
+"""convodrive train: DDP equals one process, resumption continues exactly, mistakes are one line."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from tests.conftest import run_cli
+
+TINY = ["--preset", "tiny", "--device", "cpu", "--no-progress"]
+
+
+def _weights(run: Path) -> dict[str, torch.Tensor]:
+    latest = sorted((run / "checkpoints").iterdir())[-1]
+    return load_file(str(latest / "model.safetensors"))
+
+
+def _max_diff(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> float:
+    assert a.keys() == b.keys()
+    return max(float((a[k] - b[k]).abs().max()) for k in a)
+
+
+def test_two_ddp_processes_train_the_same_weights_as_one(tiny_corpus: Path, tmp_path: Path) -> None:
+    common = ["fgd", "--corpus", str(tiny_corpus), *TINY, "--steps", "6", "--batch-size", "8"]
+    one = subprocess.run(
+        [sys.executable, "-m", "convodrive.training", *common, "--out", str(tmp_path / "one")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert one.returncode == 0, one.stderr
+    two = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "torch.distributed.run",
+            "--standalone",
+            "--nproc_per_node",
+            "2",
+            "-m",
+            "convodrive.training",
+            *common,
+            "--out",
+            str(tmp_path / "two"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert two.returncode == 0, two.stderr
+    a, b = _weights(tmp_path / "one"), _weights(tmp_path / "two")
+    assert _max_diff(a, b) < 1e-5
+    init = run_cli("train", *common, "--steps", "1", "--out", str(tmp_path / "init"))
+    assert init.returncode == 0, init.stderr
+    assert _max_diff(a, _weights(tmp_path / "init")) > 1e-3  # six steps moved the weights
+    assert 'world_size": 2' in (tmp_path / "two" / "run.json").read_text()
+
+
+def test_a_resumed_run_continues_exactly(tiny_corpus: Path, tmp_path: Path) -> None:
+    common = ["train", "fgd", "--corpus", str(tiny_corpus), *TINY, "--set", "checkpoint_every=4"]
+    straight = run_cli(*common, "--steps", "8", "--out", str(tmp_path / "straight"))
+    assert straight.returncode == 0, straight.stderr
+    first = run_cli(*common, "--steps", "4", "--out", str(tmp_path / "resumed"))
+    assert first.returncode == 0, first.stderr
+    second = run_cli(*common, "--steps", "8", "--out", str(tmp_path / "resumed"))
+    assert second.returncode == 0, second.stderr
+    assert _max_diff(_weights(tmp_path / "straight"), _weights(tmp_path / "resumed")) == 0.0
+    log = (tmp_path / "resumed" / "metrics.csv").read_text().splitlines()
+    assert log[0] == "step,wall_s,split,name,value" and any(line.startswith("8,") for line in log)
+    other = run_cli(*common, "--steps", "8", "--set", "channels=5", "--out", str(tmp_path / "resumed"))
+    assert other.returncode == 2 and "other settings" in other.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["train", "nosuchmodel", "--corpus", "C"], "unknown model 'nosuchmodel' (available: fgd"),
+        (["train", "fgd", "--corpus", "C", "--preset", "huge"], "has no preset 'huge' (available: paper, small, tiny)"),
+        (["train", "fgd", "--corpus", "C", "--preset", "tiny", "--set", "chanels=3"], "did you mean 'channels'"),
+        (["train", "fgd", "--corpus", "NOPE", "--preset", "tiny"], "NOPE: no such corpus folder"),
+    ],
+)
+def test_user_mistakes_are_one_line(args: list[str], message: str, tiny_corpus: Path, tmp_path: Path) -> None:
+    args = [str(tiny_corpus) if a == "C" else a for a in args]
+    out = run_cli(*args, "--out", str(tmp_path / "run"))
+    assert out.returncode == 2, out.stderr
+    assert message in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr
+    assert not (tmp_path / "run" / "checkpoints").exists()
+
+
+def test_a_corpus_with_a_missing_shard_is_one_line(tiny_corpus: Path, tmp_path: Path) -> None:
+    broken = tmp_path / "broken"
+    shutil.copytree(tiny_corpus, broken)
+    shard = sorted((broken / "shards").iterdir())[0]
+    shard.unlink()
+    out = run_cli("train", "fgd", "--corpus", str(broken), *TINY, "--out", str(tmp_path / "run"))
+    assert out.returncode == 2 and shard.name in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr
