@@ -1,0 +1,58 @@
+"""The outputs of ``eval compare``: a Markdown table, the same figures as JSON, and a PNG plot."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from convodrive.eval.suite import COLUMNS
+from convodrive.plumbing.atomic import atomic_path, write_text_atomic
+
+PLOTTED = ("FD_g body", "FD_g face", "FGD holistic", "FD_k body", "Div_sample", "BC", "lip r", "mouth shut")
+
+
+def _cell(value: float | None) -> str:
+    return "—" if value is None else f"{value:.3g}"
+
+
+def markdown(results: dict[str, dict[str, Any]], title: str) -> str:
+    arrows = {"low": " ↓", "high": " ↑", "": ""}
+    header = "| method | " + " | ".join(f"{n}{arrows[b]}" for n, b, _ in COLUMNS) + " |"
+    rule = "|---|" + "---|" * len(COLUMNS)
+    rows = [f"| {m} | " + " | ".join(_cell(fig.get(n)) for n, _, _ in COLUMNS) + " |" for m, fig in results.items()]
+    notes = [f"- **{n}**{arrows[b]}: {what}" for n, b, what in COLUMNS]
+    return "\n".join([f"# {title}", "", header, rule, *rows, "", *notes]) + "\n"
+
+
+def plot(results: dict[str, dict[str, Any]], path: Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    methods = list(results)
+    fig, axes = plt.subplots(2, 4, figsize=(16, 7), constrained_layout=True)
+    colours = plt.get_cmap("tab10")(range(len(methods)))
+    better = {n: b for n, b, _ in COLUMNS}
+    for ax, name in zip(axes.ravel(), PLOTTED):
+        values = [results[m].get(name) for m in methods]
+        ax.bar(range(len(methods)), [0 if v is None else v for v in values], color=colours)
+        ax.set_xticks(range(len(methods)), methods, rotation=30, ha="right", fontsize=8)
+        ax.set_title(f"{name} ({'lower' if better[name] == 'low' else 'higher'} is better)", fontsize=10)
+        for i, v in enumerate(values):
+            ax.annotate(_cell(v), (i, 0 if v is None else v), ha="center", va="bottom", fontsize=7)
+    fig.suptitle(title)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90, format="png")
+    plt.close(fig)
+
+
+def write_outputs(results: dict[str, dict[str, Any]], out: Path, title: str, context: dict[str, Any]) -> list[Path]:
+    out.mkdir(parents=True, exist_ok=True)
+    md, js, png = out / "compare.md", out / "compare.json", out / "compare.png"
+    write_text_atomic(md, markdown(results, title))
+    columns = [{"name": n, "better": b, "definition": w} for n, b, w in COLUMNS]
+    write_text_atomic(js, json.dumps({**context, "columns": columns, "results": results}, indent=2) + "\n")
+    plot(results, png, title)
+    return [md, js, png]

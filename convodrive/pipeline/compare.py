@@ -1,0 +1,130 @@
+"""``convodrive eval compare``: run methods over a corpus split and score them with one suite.
+
+This is the one place that knows both generators and the metrics: the baselines come from the
+corpus (``eval.baselines``), any other name is a generator plugin run on each conversation's
+audio; every method is then scored by ``eval.suite`` against take 0 of each conversation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from convodrive.corpus import Corpus
+from convodrive.corpus.stats import feature_stats
+from convodrive.eval.baselines import BASELINES, KNNIndex, ground_truth, random_motion
+from convodrive.eval.fgd import FGDEmbedder
+from convodrive.eval.suite import Case, score
+from convodrive.eval.table import write_outputs
+from convodrive.generators.base import Generator
+from convodrive.motion import representation as rep
+from convodrive.motion.clip import MotionClip
+from convodrive.plugins import GENERATOR_GROUP, load_plugin
+from convodrive.plumbing.errors import UserError
+
+
+@dataclasses.dataclass
+class CompareRequest:
+    corpus: Path
+    generators: tuple[str, ...]
+    out: Path
+    split: str = "test"
+    samples: int = 4
+    seed: int = 0
+    max_conversations: int | None = None
+    fgd_model: Path | None = None
+    generator_options: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass
+class CompareResult:
+    results: dict[str, dict[str, Any]]
+    outputs: list[Path]
+    seconds: dict[str, float]
+
+
+def _check_names(names: tuple[str, ...]) -> None:
+    if not names:
+        raise UserError("--generators needs at least one name (e.g. ground-truth,procedural,knn,random)")
+    for name in names:
+        if name not in BASELINES:
+            load_plugin(GENERATOR_GROUP, name)  # unknown or unloadable: one line, before any work
+
+
+def compare(request: CompareRequest, on_method: Callable[[str], None] | None = None) -> CompareResult:
+    _check_names(request.generators)
+    if request.samples < 1:
+        raise UserError(f"--samples must be at least 1, got {request.samples}")
+    corpus = Corpus.open(request.corpus)
+    convs = corpus.split(request.split)
+    if request.max_conversations:
+        convs = convs[: request.max_conversations]
+    if not convs:
+        raise UserError(f"{request.corpus}: the {request.split} split holds no conversation")
+    stats = feature_stats(corpus, "train")
+    embedder = FGDEmbedder(request.fgd_model)
+    audio = {c.id: corpus.audio(c.id) for c in convs}
+    references = {c.id: corpus.window(c.id, 0, 0, c.frames).clip() for c in convs}
+    masks = {c.id: rep.feature_mask(c.joint_mask, c.face_mask) for c in convs}
+    knn: KNNIndex | None = None
+    results: dict[str, dict[str, Any]] = {}
+    seconds: dict[str, float] = {}
+    for name in request.generators:
+        if on_method is not None:
+            on_method(name)
+        started = time.monotonic()
+        rng = np.random.default_rng([request.seed, len(results)])
+        generator: Generator | None = None
+        if name not in BASELINES:
+            generator = load_plugin(GENERATOR_GROUP, name)(request.generator_options.get(name, {}))
+        cases = []
+        for conv in convs:
+            samples: list[MotionClip] | None
+            if name == "ground-truth":
+                samples = ground_truth(corpus, conv, request.samples)
+            elif name == "random":
+                samples = random_motion(corpus, conv, request.samples, rng)
+            elif name == "knn":
+                knn = knn or KNNIndex(corpus)
+                samples = knn.motion(conv, request.samples)
+            else:
+                assert generator is not None
+                samples = generator.generate(audio[conv.id], seed=request.seed, num_samples=request.samples)
+                samples = [_fit(s, conv.frames) for s in samples]
+            if samples is not None:
+                cases.append(Case(conv.id, references[conv.id], audio[conv.id], masks[conv.id], samples))
+        generated = time.monotonic()
+        if not cases:
+            raise UserError(
+                f"method '{name}' has nothing to score on the {request.split} split (ground-truth needs at least two takes)"
+            )
+        results[name] = score(cases, stats, embedder, seed=request.seed)
+        seconds[name] = round(time.monotonic() - started, 2)
+        seconds[f"{name} (metrics)"] = round(time.monotonic() - generated, 2)
+    context = {
+        "corpus": str(request.corpus),
+        "split": request.split,
+        "conversations": len(convs),
+        "hours": round(sum(c.frames for c in convs) / 30 / 3600, 3),
+        "samples": request.samples,
+        "seed": request.seed,
+        "fgd_model": str(embedder.folder.path),
+        "fgd_files": embedder.folder.spec["files"],
+        "seconds": seconds,
+    }
+    title = f"{Path(request.corpus).name}, {request.split} split: {len(convs)} conversations, {request.samples} samples each"
+    outputs = write_outputs(results, Path(request.out), title, context)
+    return CompareResult(results, outputs, seconds)
+
+
+def _fit(clip: MotionClip, frames: int) -> MotionClip:
+    """A generated clip cut (or its last frame held) to the reference's length."""
+    if clip.num_frames == frames:
+        return clip
+    idx = np.minimum(np.arange(frames), clip.num_frames - 1)
+    return MotionClip(clip.pose[idx], clip.translation[idx], clip.face[idx], clip.vad[idx], clip.state[idx], clip.fps)
