@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -29,7 +29,7 @@ from convodrive.motion import representation as rep
 from convodrive.motion.clip import MotionFrame
 from convodrive.neural import Graph, ModelFolder, SessionOptions, load_model_folder
 from convodrive.neural.windows import WindowPlan
-from convodrive.plugins.options import PluginOptions, option, parse_options
+from convodrive.plugins.options import PluginOptions, option
 from convodrive.plumbing.errors import InputFileError, UserError
 
 
@@ -51,10 +51,11 @@ class LearnedGenerator(Generator):
     extra: ClassVar[str] = "neural"
     requires: ClassVar[tuple[str, ...]] = ("onnxruntime",)
 
-    def __init__(self, options: dict[str, Any] | None = None) -> None:
+    options: LearnedOptions
+
+    def __init__(self, options: LearnedOptions | Mapping[str, Any] | None = None) -> None:
         super().__init__(options)
-        self.settings = parse_options(self.Options, self.options, plugin=f"generator {self.name}")
-        path = self.settings.model or self.shipped_model
+        path = self.options.model or self.shipped_model
         if not path:
             raise UserError(f"generator '{self.name}' needs a model folder: -G model=DIR")
         self.folder: ModelFolder = load_model_folder(path)
@@ -73,7 +74,7 @@ class LearnedGenerator(Generator):
         self.mel_spec = MelSpec.from_dict(features.get("corpus", {}).get("audio_features", {}))
         norm = self.folder.arrays("normalisation.npz")
         self.stats = rep.FeatureStats(norm["mean"], norm["std"], np.ones(rep.FEATURE_DIM, np.int64))
-        self.session_options = SessionOptions(threads=self.settings.threads, device=self.settings.device)
+        self.session_options = SessionOptions(threads=self.options.threads, device=self.options.device)
         self.plan = self.window_plan()
         self._silence = log_mel(np.zeros((2 * self.mel_spec.window, 2), np.float32), 1, self.mel_spec)[0]
 

@@ -48,6 +48,5 @@ class OneLineParser(argparse.ArgumentParser):
     """argparse prints usage plus an error; we print the error alone, on one line, exit code 2."""
 
     def error(self, message: str) -> NoReturn:
-        sys.stderr.write(f"{self.prog}: error: {message} (see --help)
-")
+        sys.stderr.write(f"{self.prog}: error: {message} (see --help)\n")
         raise SystemExit(EXIT_USER_ERROR)
