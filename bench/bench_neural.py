@@ -4,6 +4,7 @@ Prints JSON with
 - ``corpus_hours_per_minute``: ``convodrive corpus make`` throughput (skipped with ``--corpus``);
 - ``train_steps_per_second``: the ``fgd`` recipe (preset ``--preset``) on that corpus, one process;
 - ``onnx_parity``: the exported graphs' max abs error against torch at each parity size;
+- ``int8_fgd``: the FGD figures of two methods with the float and the int8 embedder;
 - ``metrics_seconds``: the ``eval compare`` suite's time per method on the test split (the
   methods' own generation time excluded), and the test split's hours;
 - the machine's load average before and after (the machine may be shared: quote it).
@@ -80,6 +81,18 @@ def main() -> int:
     )
     meta = json.loads((work / "cmp" / "compare.json").read_text())
     out["metrics_seconds"] = {k: v for k, v in cmp.seconds.items() if k.endswith("(metrics)")}
+    # What int8 (dynamic, MatMul only) costs the embedder, measured on FGD itself.
+    quantised = export_model(result.checkpoint or work / "run", work / "model_int8", int8=True)
+    out["int8_output_cost"] = quantised.int8
+    q = compare(
+        CompareRequest(
+            corpus, ("ground-truth", "random"), work / "cmp_int8", samples=args.samples, fgd_model=work / "model_int8"
+        )
+    )
+    out["int8_fgd"] = {
+        m: {p: {"float": cmp.results[m][p], "int8": q.results[m][p]} for p in ("FGD holistic", "FGD body", "FGD face")}
+        for m in ("ground-truth", "random")
+    }
     out["test_split_hours"] = meta["hours"]
     out["load_after"] = [round(x, 2) for x in os.getloadavg()]
     print(json.dumps(out, indent=2))

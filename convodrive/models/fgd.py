@@ -43,11 +43,9 @@ class MotionAutoencoder(nn.Module):
 
     def __init__(self, dims: int, config: FGDConfig) -> None:
         super().__init__()
-        if config.window % 4:
-            raise ValueError(f"window must be a multiple of 4, got {config.window}")
         c = config.channels
         self.dims, self.window = dims, config.window
-        self.reduced = config.window // 4
+        self.reduced = config.window // 4  # two stride-2 convs: floor(floor(w / 2) / 2)
         self.encoder = nn.Sequential(
             _block(dims, c, 1), _block(c, 2 * c, 2), _block(2 * c, 2 * c, 1), _block(2 * c, 4 * c, 2)
         )
@@ -65,7 +63,10 @@ class MotionAutoencoder(nn.Module):
 
     def decode(self, latent: torch.Tensor) -> torch.Tensor:
         h = self.from_latent(latent).view(-1, self._channels, self.reduced)
-        return self.decoder(h).transpose(1, 2)
+        out = self.decoder(h)  # 4 * reduced frames: the window, less its remainder modulo 4
+        if out.shape[-1] != self.window:
+            out = nn.functional.interpolate(out, size=self.window, mode="linear", align_corners=False)
+        return out.transpose(1, 2)
 
     def forward(self, motion: torch.Tensor) -> torch.Tensor:
         return self.decode(self.encode(motion))

@@ -66,6 +66,7 @@ def run_train(args: argparse.Namespace) -> int:
             batch_size=args.batch_size,
             seed=args.seed,
             device=args.device,
+            threads=args.threads,
             progress=not args.no_progress,
             settings=parse_settings(args.settings),
         )

@@ -17,6 +17,7 @@ import torch
 from convodrive.eval.distribution import frechet_distance
 from convodrive.models.fgd import FGDConfig, FGDNetworks, PartEncoder
 from convodrive.motion import representation as rep
+from convodrive.plumbing.errors import UserError
 from convodrive.training.config import Preset
 from convodrive.training.corpus_data import corpus_facts, open_corpus, train_stats
 from convodrive.training.recipe import Batch, DataSpec, GraphSpec, Recipe, StepContext, TrainingData
@@ -73,6 +74,10 @@ class FGDRecipe(Recipe):
         return TrainingData(train=train, val=val if len(val) else None, spec=spec)
 
     def build_model(self, config: FGDConfig, spec: DataSpec, stage: str) -> torch.nn.Module:
+        if config.window < 8 or config.channels < 1 or config.latent < 1:
+            raise UserError(
+                f"model 'fgd': window must be at least 8 frames and sizes positive (window {config.window})"
+            )
         parts = {k: list(v) for k, v in spec.info["parts"].items()}
         return FGDNetworks(parts, config)
 
