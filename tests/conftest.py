@@ -4,8 +4,8 @@ what a test needs beyond the core install.
 A core-only install (``pip install -e . pytest pytest-timeout hypothesis``) runs its share of the
 suite. A test that needs an extra or a system tool carries a marker named in ``NEEDS`` below (and
 registered in pyproject.toml: mujoco, gymnasium, gl, ffmpeg, hardware, pocketsphinx, espeak, xvfb,
-bvh_reader, gltf_reader, gltf_validator, import_linter, build_tools, onnxruntime, torch, live, pulseaudio,
-chromium); where the machine lacks it the test is
+bvh_reader, gltf_reader, gltf_validator, import_linter, build_tools, onnxruntime, torch, matplotlib,
+transformers, live, pulseaudio, chromium); where the machine lacks it the test is
 skipped with the reason and what installs it. CI installs everything and sets
 ``CONVODRIVE_TESTS_NEED_ALL=1``, which turns such a skip into a failure.
 
@@ -50,8 +50,10 @@ NEEDS: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
     "gltf_validator": ((), ("node",), "scripts/setup.sh --dev (nodejs and the gltf-validator package in tools/node)"),
     "import_linter": (("importlinter",), (), "pip install 'convodrive[dev]'"),
     "build_tools": (("wheel",), (), "pip install -U setuptools wheel, as scripts/setup.sh does"),
-    "onnxruntime": (("onnxruntime",), (), "pip install 'convodrive[models]'"),
-    "torch": (("torch",), (), "pip install 'convodrive[models]'"),
+    "onnxruntime": (("onnxruntime",), (), "pip install 'convodrive[neural]'"),
+    "torch": (("torch", "onnx", "onnxscript", "safetensors"), (), "pip install 'convodrive[train]'"),
+    "matplotlib": (("matplotlib",), (), "pip install 'convodrive[eval]'"),
+    "transformers": (("transformers",), (), "pip install 'convodrive[frontend]'"),
     "live": (("sounddevice", "websockets", "pythonosc"), (), "pip install 'convodrive[live]'"),
     "pulseaudio": (
         ("sounddevice",),

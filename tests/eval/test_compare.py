@@ -7,7 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import run_cli
+from tests.conftest import require, run_cli
+
+pytestmark = [require("torch"), require("onnxruntime"), require("matplotlib")]
 
 
 @pytest.fixture(scope="module")

@@ -11,8 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import REPO, run_cli
+from tests.conftest import REPO, require, run_cli
 from tests.corpora import turn_taking_audio
+
+pytestmark = [require("torch"), require("onnxruntime"), pytest.mark.build_tools]
 
 
 @pytest.fixture(scope="module")

@@ -9,8 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from convodrive.neural import Graph, SessionOptions, available_devices, load_model_folder
-from convodrive.plumbing.errors import InputFileError, UserError
+from tests.conftest import require
+
+pytestmark = [require("onnxruntime"), require("torch")]
+
+from convodrive.neural import Graph, SessionOptions, available_devices, load_model_folder  # noqa: E402
+from convodrive.plumbing.errors import InputFileError, UserError  # noqa: E402
 
 
 def _identity_onnx(path: Path) -> None:

@@ -7,13 +7,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
-from convodrive.neural import Graph, load_model_folder
-from convodrive.plumbing.errors import UserError
-from convodrive.training.export import PARITY_TOLERANCE, export_graph, parity, restore
-from convodrive.training.recipe import GraphSpec
-from tests.conftest import run_cli
+from tests.conftest import require, run_cli
+
+pytestmark = [require("torch"), require("onnxruntime")]
+
+import torch  # noqa: E402
+
+from convodrive.neural import Graph, load_model_folder  # noqa: E402
+from convodrive.plumbing.errors import UserError  # noqa: E402
+from convodrive.training.export import PARITY_TOLERANCE, export_graph, parity, restore  # noqa: E402
+from convodrive.training.recipe import GraphSpec  # noqa: E402
 
 
 @pytest.fixture(scope="module")

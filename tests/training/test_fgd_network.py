@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
-import torch
+from tests.conftest import require
 
-from convodrive.models.fgd import FGDConfig, FGDNetworks
-from convodrive.motion import representation as rep
-from convodrive.training.recipes.fgd import FGDRecipe, fgd_parts
+pytestmark = require("torch")
+
+import torch  # noqa: E402
+
+from convodrive.models.fgd import FGDConfig, FGDNetworks  # noqa: E402
+from convodrive.motion import representation as rep  # noqa: E402
+from convodrive.training.recipes.fgd import FGDRecipe, fgd_parts  # noqa: E402
 
 
 def test_every_preset_builds_and_reconstructs_its_window() -> None:

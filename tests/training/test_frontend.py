@@ -7,13 +7,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
-from convodrive.neural import Graph
-from convodrive.plumbing.errors import InputFileError
-from convodrive.training.export import export_graph, parity
+from tests.conftest import require
 
-transformers = pytest.importorskip("transformers")
+pytestmark = [require("torch"), require("onnxruntime"), require("transformers")]
+
+import torch  # noqa: E402
+import transformers  # noqa: E402
+
+from convodrive.neural import Graph  # noqa: E402
+from convodrive.plumbing.errors import InputFileError  # noqa: E402
+from convodrive.training.export import export_graph, parity  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -8,10 +8,13 @@ import sys
 from pathlib import Path
 
 import pytest
-import torch
-from safetensors.torch import load_file
 
-from tests.conftest import run_cli
+from tests.conftest import require, run_cli
+
+pytestmark = [require("torch"), require("onnxruntime")]
+
+import torch  # noqa: E402
+from safetensors.torch import load_file  # noqa: E402
 
 TINY = ["--preset", "tiny", "--device", "cpu", "--no-progress"]
 
