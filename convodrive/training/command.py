@@ -36,6 +36,7 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
         metavar="KEY=VALUE",
         help="override one model or training setting (JSON value), repeatable",
     )
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads per process (default 1)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

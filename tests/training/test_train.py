@@ -87,6 +87,7 @@ def test_a_resumed_run_continues_exactly(tiny_corpus: Path, tmp_path: Path) -> N
         (["train", "fgd", "--corpus", "C", "--preset", "huge"], "has no preset 'huge' (available: paper, small, tiny)"),
         (["train", "fgd", "--corpus", "C", "--preset", "tiny", "--set", "chanels=3"], "did you mean 'channels'"),
         (["train", "fgd", "--corpus", "NOPE", "--preset", "tiny"], "NOPE: no such corpus folder"),
+        (["train", "fgd", "--corpus", "C", "--preset", "tiny", "--threads", "0"], "--threads must be at least 1"),
     ],
 )
 def test_user_mistakes_are_one_line(args: list[str], message: str, tiny_corpus: Path, tmp_path: Path) -> None:
