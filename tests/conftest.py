@@ -175,3 +175,21 @@ def tiny_corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from tests.corpora import write_tiny_corpus
 
     return write_tiny_corpus(tmp_path_factory.mktemp("corpus") / "tiny")
+
+
+@pytest.fixture(scope="session")
+def tiny_fgd_run(tiny_corpus: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The ``fgd`` recipe's tiny preset trained for 10 steps on ``tiny_corpus`` (in this process)."""
+    from convodrive.training.loop import TrainRequest, train
+
+    out = tmp_path_factory.mktemp("tiny_fgd") / "run"
+    train(TrainRequest("fgd", tiny_corpus, preset="tiny", steps=10, out=out, device="cpu", progress=False))
+    return out
+
+
+@pytest.fixture(scope="session")
+def tiny_fgd_model(tiny_fgd_run: Path) -> Path:
+    """``tiny_fgd_run`` exported to an ONNX model folder."""
+    from convodrive.training.export import export_model
+
+    return export_model(tiny_fgd_run, tiny_fgd_run.parent / "model").folder

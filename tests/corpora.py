@@ -39,11 +39,17 @@ def write_tiny_corpus(
     folder: Path, conversations: int = 6, seconds: float = 4.0, takes: int = 2, seed: int = 0
 ) -> Path:
     styles = {"calm": {"expressiveness": 0.6}, "lively": {"expressiveness": 1.4}}
-    with CorpusWriter(folder, source={"command": "tests", "seed": seed}, seed=seed) as writer:
+    with CorpusWriter(
+        folder, source={"command": "tests", "generator": "procedural", "seed": seed}, seed=seed
+    ) as writer:
         for i in range(conversations):
             speaker = list(styles)[i % len(styles)]
             audio = turn_taking_audio(seconds, seed * 1000 + i)
             gen = ProceduralGenerator(styles[speaker])
             clips = gen.generate(DyadicAudio(audio[:, 0], audio[:, 1]), seed=i, num_samples=takes)
-            writer.add(Recording(id=f"conv{i:02d}", audio=audio, takes=clips, speaker=speaker))
+            writer.add(
+                Recording(
+                    id=f"conv{i:02d}", audio=audio, takes=clips, speaker=speaker, metadata={"style": styles[speaker]}
+                )
+            )
     return folder

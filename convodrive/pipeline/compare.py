@@ -3,11 +3,17 @@
 This is the one place that knows both generators and the metrics: the baselines come from the
 corpus (``eval.baselines``), any other name is a generator plugin run on each conversation's
 audio; every method is then scored by ``eval.suite`` against take 0 of each conversation.
+
+Generators are told whose motion they make, as the papers condition on speaker identity: a
+generator whose options declare ``speaker`` gets the conversation's speaker label, and the generator
+that taught a made corpus (its manifest's source) gets the style options the corpus recorded for
+that conversation, so ``procedural`` is scored as the teacher it was, not with default settings.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -15,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from convodrive.corpus import Corpus
+from convodrive.corpus import ConversationInfo, Corpus
 from convodrive.corpus.stats import feature_stats
 from convodrive.eval.baselines import BASELINES, KNNIndex, ground_truth, random_motion
 from convodrive.eval.fgd import FGDEmbedder
@@ -79,9 +85,7 @@ def compare(request: CompareRequest, on_method: Callable[[str], None] | None = N
             on_method(name)
         started = time.monotonic()
         rng = np.random.default_rng([request.seed, len(results)])
-        generator: Generator | None = None
-        if name not in BASELINES:
-            generator = load_plugin(GENERATOR_GROUP, name)(request.generator_options.get(name, {}))
+        generators: dict[str, Generator] = {}
         cases = []
         for conv in convs:
             samples: list[MotionClip] | None
@@ -93,8 +97,11 @@ def compare(request: CompareRequest, on_method: Callable[[str], None] | None = N
                 knn = knn or KNNIndex(corpus)
                 samples = knn.motion(conv, request.samples)
             else:
-                assert generator is not None
-                samples = generator.generate(audio[conv.id], seed=request.seed, num_samples=request.samples)
+                options = {**conversation_options(name, corpus, conv), **request.generator_options.get(name, {})}
+                key = json.dumps(options, sort_keys=True, default=str)
+                if key not in generators:
+                    generators[key] = load_plugin(GENERATOR_GROUP, name)(options)
+                samples = generators[key].generate(audio[conv.id], seed=request.seed, num_samples=request.samples)
                 samples = [_fit(s, conv.frames) for s in samples]
             if samples is not None:
                 cases.append(Case(conv.id, references[conv.id], audio[conv.id], masks[conv.id], samples))
@@ -120,6 +127,19 @@ def compare(request: CompareRequest, on_method: Callable[[str], None] | None = N
     title = f"{Path(request.corpus).name}, {request.split} split: {len(convs)} conversations, {request.samples} samples each"
     outputs = write_outputs(results, Path(request.out), title, context)
     return CompareResult(results, outputs, seconds)
+
+
+def conversation_options(name: str, corpus: Corpus, conv: ConversationInfo) -> dict[str, Any]:
+    """What generator ``name`` is told about the conversation's speaker (see the module doc)."""
+    cls = load_plugin(GENERATOR_GROUP, name)
+    fields = {f.name for f in dataclasses.fields(cls.Options)} if dataclasses.is_dataclass(cls.Options) else set()
+    options: dict[str, Any] = {}
+    if "speaker" in fields:
+        options["speaker"] = conv.speaker
+    style = conv.metadata.get("style")
+    if corpus.manifest.get("source", {}).get("generator") == name and isinstance(style, dict):
+        options.update({k: v for k, v in style.items() if k in fields})
+    return options
 
 
 def _fit(clip: MotionClip, frames: int) -> MotionClip:

@@ -12,16 +12,9 @@ from tests.conftest import require, run_cli
 pytestmark = [require("torch"), require("onnxruntime"), require("matplotlib")]
 
 
-@pytest.fixture(scope="module")
-def fgd_model(tiny_corpus: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("fgd_cmp")
-    trained = run_cli(
-        "train", "fgd", "--corpus", str(tiny_corpus), "--preset", "tiny", "--no-progress", "--out", str(root / "run")
-    )
-    assert trained.returncode == 0, trained.stderr
-    exported = run_cli("export", str(root / "run"), "--out", str(root / "model"))
-    assert exported.returncode == 0, exported.stderr
-    return root / "model"
+@pytest.fixture
+def fgd_model(tiny_fgd_model: Path) -> Path:
+    return tiny_fgd_model
 
 
 def test_compare_writes_the_table_json_and_plot(tiny_corpus: Path, fgd_model: Path, tmp_path: Path) -> None:
@@ -69,3 +62,12 @@ def test_an_unknown_method_is_one_line_before_any_work(tiny_corpus: Path, tmp_pa
     )
     assert out.returncode == 2 and "unknown generator 'nosuch'" in out.stderr and len(out.stderr.splitlines()) == 1
     assert not (tmp_path / "c").exists()
+
+
+def test_the_teacher_generator_is_scored_with_each_speakers_style(tiny_corpus: Path) -> None:
+    from convodrive.corpus import Corpus
+    from convodrive.pipeline.compare import conversation_options
+
+    corpus = Corpus.open(tiny_corpus)
+    styles = {conv.speaker: conversation_options("procedural", corpus, conv) for conv in corpus.conversations}
+    assert styles == {"calm": {"expressiveness": 0.6}, "lively": {"expressiveness": 1.4}}

@@ -16,28 +16,13 @@ import torch  # noqa: E402
 
 from convodrive.neural import Graph, load_model_folder  # noqa: E402
 from convodrive.plumbing.errors import UserError  # noqa: E402
-from convodrive.training.export import PARITY_TOLERANCE, export_graph, parity, restore  # noqa: E402
+from convodrive.training.export import PARITY_TOLERANCE, export_graph, export_model, parity, restore  # noqa: E402
 from convodrive.training.recipe import GraphSpec  # noqa: E402
 
 
-@pytest.fixture(scope="module")
-def fgd_run(tiny_corpus: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("fgd") / "run"
-    result = run_cli(
-        "train",
-        "fgd",
-        "--corpus",
-        str(tiny_corpus),
-        "--preset",
-        "tiny",
-        "--steps",
-        "10",
-        "--no-progress",
-        "--out",
-        str(out),
-    )
-    assert result.returncode == 0, result.stderr
-    return out
+@pytest.fixture
+def fgd_run(tiny_fgd_run: Path) -> Path:
+    return tiny_fgd_run
 
 
 def test_export_checks_parity_at_three_sizes_and_writes_a_verified_folder(fgd_run: Path, tmp_path: Path) -> None:
@@ -63,8 +48,7 @@ def test_export_checks_parity_at_three_sizes_and_writes_a_verified_folder(fgd_ru
 
 
 def test_int8_quantises_matmuls_and_measures_the_cost(fgd_run: Path, tmp_path: Path) -> None:
-    out = run_cli("export", str(fgd_run), "--out", str(tmp_path / "q"), "--int8")
-    assert out.returncode == 0, out.stderr
+    export_model(fgd_run, tmp_path / "q", int8=True)
     meta = json.loads((tmp_path / "q" / "model.json").read_text())
     cost = meta["int8"]["cost"]["encoder_body"]
     assert 0 < cost["relative_rms_err"] < 0.1

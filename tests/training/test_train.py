@@ -16,6 +16,8 @@ pytestmark = [require("torch"), require("onnxruntime")]
 import torch  # noqa: E402
 from safetensors.torch import load_file  # noqa: E402
 
+from convodrive.training.loop import TrainRequest, train  # noqa: E402
+
 TINY = ["--preset", "tiny", "--device", "cpu", "--no-progress"]
 
 
@@ -59,18 +61,38 @@ def test_two_ddp_processes_train_the_same_weights_as_one(tiny_corpus: Path, tmp_
     assert two.returncode == 0, two.stderr
     a, b = _weights(tmp_path / "one"), _weights(tmp_path / "two")
     assert _max_diff(a, b) < 1e-5
-    init = run_cli("train", *common, "--steps", "1", "--out", str(tmp_path / "init"))
-    assert init.returncode == 0, init.stderr
+    train(
+        TrainRequest(
+            "fgd",
+            tiny_corpus,
+            preset="tiny",
+            steps=1,
+            batch_size=8,
+            out=tmp_path / "init",
+            device="cpu",
+            progress=False,
+        )
+    )
     assert _max_diff(a, _weights(tmp_path / "init")) > 1e-3  # six steps moved the weights
     assert 'world_size": 2' in (tmp_path / "two" / "run.json").read_text()
 
 
 def test_a_resumed_run_continues_exactly(tiny_corpus: Path, tmp_path: Path) -> None:
     common = ["train", "fgd", "--corpus", str(tiny_corpus), *TINY, "--set", "checkpoint_every=4"]
-    straight = run_cli(*common, "--steps", "8", "--out", str(tmp_path / "straight"))
-    assert straight.returncode == 0, straight.stderr
-    first = run_cli(*common, "--steps", "4", "--out", str(tmp_path / "resumed"))
-    assert first.returncode == 0, first.stderr
+    for steps, out in ((8, "straight"), (4, "resumed")):  # in this process; the resumption below is the CLI's
+        settings = {"checkpoint_every": 4}
+        train(
+            TrainRequest(
+                "fgd",
+                tiny_corpus,
+                preset="tiny",
+                steps=steps,
+                out=tmp_path / out,
+                device="cpu",
+                progress=False,
+                settings=settings,
+            )
+        )
     second = run_cli(*common, "--steps", "8", "--out", str(tmp_path / "resumed"))
     assert second.returncode == 0, second.stderr
     assert _max_diff(_weights(tmp_path / "straight"), _weights(tmp_path / "resumed")) == 0.0
