@@ -131,8 +131,8 @@ def compare(request: CompareRequest, on_method: Callable[[str], None] | None = N
 
 def conversation_options(name: str, corpus: Corpus, conv: ConversationInfo) -> dict[str, Any]:
     """What generator ``name`` is told about the conversation's speaker (see the module doc)."""
-    cls = load_plugin(GENERATOR_GROUP, name)
-    fields = {f.name for f in dataclasses.fields(cls.Options)} if dataclasses.is_dataclass(cls.Options) else set()
+    declared = getattr(load_plugin(GENERATOR_GROUP, name), "Options", None)
+    fields = {f.name for f in dataclasses.fields(declared)} if dataclasses.is_dataclass(declared) else set()
     options: dict[str, Any] = {}
     if "speaker" in fields:
         options["speaker"] = conv.speaker
