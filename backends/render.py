@@ -18,7 +18,7 @@ import dataclasses
 import logging
 import os
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -102,6 +102,32 @@ class ContactSheet:
         return path
 
 
+class Captions:
+    """Each take's caption in its tile's top-left corner: drawn once with PIL, then blended into
+    every frame with NumPy (a mask and a colour), so captions cost no PIL work per frame."""
+
+    def __init__(self, labels: Sequence[str], tile_width: int, tile_height: int, shape: tuple[int, ...]) -> None:
+        from PIL import Image, ImageDraw, ImageFont
+
+        font = ImageFont.load_default(size=max(12, tile_height // 24))
+        layer = Image.new("RGBA", (shape[1], shape[0]), (0, 0, 0, 0))
+        draw = ImageDraw.Draw(layer)
+        cols = max(shape[1] // tile_width, 1)
+        for k, text in enumerate(labels):
+            if not text:
+                continue
+            x, y = (k % cols) * tile_width + 8, (k // cols) * tile_height + 8
+            left, top, right, bottom = draw.textbbox((x, y), text, font=font)
+            draw.rectangle((left - 5, top - 4, right + 5, bottom + 4), fill=(0, 0, 0, 170))
+            draw.text((x, y), text, font=font, fill=(255, 255, 255, 255))
+        rgba = np.asarray(layer, np.float32) / 255.0
+        self.alpha = rgba[..., 3:4]
+        self.colour = rgba[..., :3] * 255.0 * self.alpha
+
+    def draw(self, image: np.ndarray) -> np.ndarray:
+        return (image * (1.0 - self.alpha) + self.colour).astype(np.uint8)
+
+
 def display_available() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
@@ -119,6 +145,7 @@ class RenderOptions(PluginOptions):
     avatar: str = option(
         "", help="A .glb, .gltf or .vrm avatar, or a YAML name map for one; empty for the built-in mannequin"
     )
+    labels: str = option("", help="Captions of the takes, comma separated, drawn in each take's top-left corner")
 
     def __post_init__(self) -> None:
         try:
@@ -152,6 +179,8 @@ class RenderBackend(Backend):
         self.antialias = self.options.antialias
         self.want_window = self.options.window
         self.avatar_path = self.options.avatar
+        self.labels = [text.strip() for text in self.options.labels.split(",")] if self.options.labels else []
+        self._captions: Captions | None = None
         self.window_note = None
         if self.want_window and display_available():
             self.realtime = True  # type: ignore[misc]  # a live window is paced by the wall clock
@@ -238,6 +267,10 @@ class RenderBackend(Backend):
         if len(takes) != self._takes:  # keep the grid: pad with the first take or drop extras
             takes = (tuple(takes) + (takes[0],) * self._takes)[: self._takes]
         image = self._renderer.render_takes(takes)
+        if self.labels:
+            if self._captions is None:
+                self._captions = Captions(self.labels, self.width, self.height, image.shape)
+            image = self._captions.draw(image)
         # Frames skipped in real time still take their place in the video, so it stays as long
         # as the audio and in step with it: the image before the gap stands in for them.
         for _ in range(max(frame.index - self._next_index, 0)):

@@ -3,7 +3,9 @@
 The bundled two-speaker dialogue through the procedural generator into every body we ship: the
 recorder (motion .npz, BVH, Live Link CSV), the avatar preview video, the MuJoCo humanoid video,
 and an emulated Dynamixel servo head driven through the real SDK over a pseudo-terminal. A body
-whose extra is not installed is skipped with a note, never an error.
+whose extra is not installed is skipped with a note, never an error. With the renderer, it then
+films the dialogue through ``procedural``, ``probtalk`` and ``a2p`` side by side, so a user sees the
+default and the two papers' models at once.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from pathlib import Path
 from convodrive.cli.drive import exit_code, print_result
 from convodrive.cli.progress import drain_progress, frame_progress
 from convodrive.pipeline import drive
-from convodrive.pipeline.demo import DEMO_BACKENDS, demo_request
+from convodrive.pipeline.demo import DEMO_BACKENDS, SIDE_BY_SIDE_GENERATORS, demo_request, side_by_side
 from convodrive.plugins import BACKEND_GROUP, load_plugin
 from convodrive.plumbing.errors import UserError
 
@@ -40,6 +42,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="NAME[,NAME]",
         help=f"backends to include (default: {','.join(DEMO_BACKENDS)})",
     )
+    p.add_argument(
+        "--no-side-by-side",
+        dest="side_by_side",
+        action="store_false",
+        help=f"skip the video of {', '.join(SIDE_BY_SIDE_GENERATORS)} side by side",
+    )
     p.set_defaults(func=run)
 
 
@@ -57,4 +65,11 @@ def run(args: argparse.Namespace) -> int:
     with demo_request(args.out, backends, args.seed) as request, frame_progress("demo") as progress:
         result = drive(request, on_frame=progress, on_drain=drain_progress(progress, "demo"))
     print_result(result)
+    if args.side_by_side and "render" in backends and not result.report.get("interrupted"):
+        print(f"demo: filming {', '.join(SIDE_BY_SIDE_GENERATORS)} side by side")
+        films = side_by_side(args.out, seed=args.seed)
+        for name, reason in films.skipped.items():
+            print(f"demo: side by side without {name}: {reason}")
+        if films.video is not None:
+            print(f"wrote {films.video} ({', '.join(films.generators)} side by side)")
     return exit_code(result)

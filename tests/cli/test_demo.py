@@ -6,9 +6,11 @@ import json
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from convodrive.motion.npz import load_clip
+from convodrive.pipeline.demo import SIDE_BY_SIDE_GENERATORS, side_by_side
 from tests.conftest import run_cli
 
 pytestmark = [pytest.mark.mujoco, pytest.mark.gl, pytest.mark.ffmpeg, pytest.mark.hardware]
@@ -69,3 +71,78 @@ def test_demo_drives_every_body_and_reports(tmp_path: Path) -> None:
         assert kinds["video"]["r_frame_rate"] == "30/1" and kinds["video"]["pix_fmt"] == "yuv420p"
         assert "audio" in kinds
         assert abs(float(info["format"]["duration"]) - 25.0) <= 1 / 30 + 1e-3
+    # Then the three generators side by side, each either filmed or named with why it is not.
+    films = json.loads((tmp_path / "side_by_side_report.json").read_text())["backends"]["render"]["report"]
+    shown = [name for name in SIDE_BY_SIDE_GENERATORS if f"side by side without {name}:" not in out.stdout]
+    assert "procedural" in shown and films["takes"] == len(shown)
+    assert f"wrote {tmp_path / 'side_by_side.mp4'} ({', '.join(shown)} side by side)" in out.stdout
+    info = _ffprobe(tmp_path / "side_by_side.mp4")
+    assert {s["codec_type"] for s in info["streams"]} == {"video", "audio"}
+    assert abs(float(info["format"]["duration"]) - 25.0) <= 1 / 30 + 1e-3
+
+
+def test_side_by_side_films_each_generator_that_runs_captioned_and_names_the_others(tmp_path: Path) -> None:
+    films = side_by_side(tmp_path, generators=("procedural", "no-such-model", "procedural"), resolution="160x160")
+    assert films.generators == ["procedural", "procedural"]
+    assert "unknown generator 'no-such-model'" in films.skipped["no-such-model"]
+    info = _ffprobe(films.video)
+    video = next(s for s in info["streams"] if s["codec_type"] == "video")
+    assert "audio" in {s["codec_type"] for s in info["streams"]}
+    frame = _frame_at(films.video, 5.0)
+    assert frame.shape == (160, 320, 3), "two takes of 160x160 side by side"
+    assert video["r_frame_rate"] == "30/1"
+    # Each tile's caption: white text on a dark box in its top-left corner, background elsewhere.
+    for left in (0, 160):
+        corner = frame[6:20, left + 6 : left + 60].astype(int)
+        background = frame[6:20, left + 130 : left + 156].astype(int)
+        assert np.median(corner.sum(axis=2)) < 0.6 * np.median(background.sum(axis=2)), "the caption's dark box"
+        assert (corner.min(axis=2) > 200).sum() > 20, "the caption's white letters"
+
+
+def _frame_at(video: Path, seconds: float) -> np.ndarray:
+    import imageio_ffmpeg
+
+    out = subprocess.run(
+        [
+            imageio_ffmpeg.get_ffmpeg_exe(),
+            "-v",
+            "error",
+            "-ss",
+            str(seconds),
+            "-i",
+            str(video),
+            "-frames:v",
+            "1",
+            "-f",
+            "rawvideo",
+            "-pix_fmt",
+            "rgb24",
+            "-",
+        ],
+        capture_output=True,
+        check=True,
+    )
+    width, height = (int(v) for v in _size(video))
+    return np.frombuffer(out.stdout, np.uint8).reshape(height, width, 3)
+
+
+def _size(video: Path) -> tuple[str, str]:
+    out = subprocess.run(
+        [
+            "ffprobe",
+            "-v",
+            "error",
+            "-select_streams",
+            "v:0",
+            "-show_entries",
+            "stream=width,height",
+            "-of",
+            "csv=p=0",
+            str(video),
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    width, height = out.stdout.strip().split(",")
+    return width, height
