@@ -1,0 +1,231 @@
+"""ProbTalk's networks: shapes, losses that fall on a tiny batch, the codebook's EMA and resets,
+frozen earlier stages, and MaskGIT decoding in NumPy equal to the torch reference."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from convodrive.models.probtalk import ProbTalk, ProbTalkConfig, maskgit_sample, sinusoid
+from convodrive.neural.maskgit import draw_uniforms, remask_count
+from convodrive.neural.maskgit import maskgit_sample as numpy_maskgit_sample
+from tests.conftest import require
+
+pytestmark = require("torch")
+
+DIM, BANDS, SPEAKERS = 330, 80, 3
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Two torch threads on a loaded 2-core machine spin against each other (100x slower)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+TINY = ProbTalkConfig(
+    codes=16,
+    code_dim=8,
+    vq_channels=(32, 32, 32, 32),
+    vq_layers=1,
+    context_channels=(8, 8, 16, 16),
+    audio_channels=16,
+    width=32,
+    heads=2,
+    layers=2,
+    feedforward=64,
+    refiner_width=32,
+    refiner_heads=2,
+    refiner_layers=1,
+    refiner_feedforward=64,
+    speaker_dim=8,
+    dropout=0.0,
+    window=48,
+    min_window=16,
+)
+
+
+def _batch(b: int = 4, t: int = 48, seed: int = 0) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    time = torch.linspace(0, 6, t)
+    phase = torch.rand(b, 1, DIM, generator=g) * 6
+    motion = torch.sin(time[None, :, None] + phase)  # smooth, learnable motion
+    return {
+        "motion": motion,
+        "mask": torch.ones(b, 1, DIM),
+        "audio": torch.randn(b, t, 2, BANDS, generator=g),
+        "speaker": torch.arange(b) % SPEAKERS,
+    }
+
+
+def test_shapes_at_several_lengths() -> None:
+    torch.manual_seed(0)
+    model = ProbTalk(TINY, DIM, BANDS, SPEAKERS).eval()
+    for t in (16, 48, 184):
+        x = _batch(2, t)
+        codes = model.vq.encode(x["motion"])
+        assert codes.shape == (2, t // 8, TINY.groups) and codes.max() < TINY.codes
+        assert model.vq.decode(codes).shape == (2, t, DIM)
+        known = torch.zeros(2, t, 1)
+        known[:, :5] = 1
+        tokens = codes.reshape(2, -1)
+        logits = model.predictor(tokens, x["audio"], x["motion"], known, x["speaker"])
+        assert logits.shape == (2, t // 8 * TINY.groups, TINY.codes)
+        refined = model.refiner(model.vq.decode(codes), x["audio"], known, x["speaker"])
+        assert refined.shape == (2, t, DIM)
+
+
+def test_untrained_refiner_passes_motion_through_and_keeps_known_frames() -> None:
+    torch.manual_seed(0)
+    model = ProbTalk(TINY, DIM, BANDS, SPEAKERS).eval()
+    x = _batch(2)
+    known = torch.zeros(2, 48, 1)
+    known[:, :12] = 1
+    assert torch.equal(model.refiner(x["motion"], x["audio"], known, x["speaker"]), x["motion"])
+    with torch.no_grad():
+        model.refiner.head.bias.fill_(0.5)
+    out = model.refiner(x["motion"], x["audio"], known, x["speaker"])
+    assert torch.equal(out[:, :12], x["motion"][:, :12])
+    assert torch.allclose(out[:, 12:], x["motion"][:, 12:] + 0.5)
+
+
+def _fit(model: ProbTalk, loss_fn, steps: int = 40, lr: float = 3e-3) -> tuple[float, float]:
+    params = [p for p in model.parameters() if p.requires_grad]
+    opt = torch.optim.Adam(params, lr=lr)
+    model.train()
+    first = last = 0.0
+    for step in range(steps):
+        loss = loss_fn()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        first = float(loss.detach()) if step == 0 else first
+        last = float(loss.detach())
+    return first, last
+
+
+def test_each_stage_loss_falls_on_a_tiny_batch() -> None:
+    torch.manual_seed(0)
+    x = _batch()
+    vq = ProbTalk(TINY, DIM, BANDS, SPEAKERS, stage="vq")
+    first, last = _fit(vq, lambda: vq.vq.loss(x["motion"], x["mask"])[0])
+    assert last < 0.6 * first
+
+    pred = ProbTalk(TINY, DIM, BANDS, SPEAKERS, stage="predictor")
+    pred.load_state_dict(vq.state_dict(), strict=False)
+    codes = pred.vq.encode(x["motion"]).reshape(4, -1)
+    known = torch.zeros(4, 48, 1)
+    masked = codes.clone()
+    masked[:, ::2] = TINY.mask_id
+
+    def ce() -> torch.Tensor:
+        logits = pred.predictor(masked, x["audio"], x["motion"], known, x["speaker"])
+        return torch.nn.functional.cross_entropy(logits.flatten(0, 1), codes.flatten())
+
+    first, last = _fit(pred, ce)
+    assert last < 0.5 * first
+
+    ref = ProbTalk(TINY, DIM, BANDS, SPEAKERS, stage="refiner")
+    coarse = x["motion"] + 0.3 * torch.randn_like(x["motion"])
+    first, last = _fit(ref, lambda: (ref.refiner(coarse, x["audio"], known, x["speaker"]) - x["motion"]).abs().mean())
+    assert last < 0.8 * first
+
+
+def test_codebooks_follow_the_latents_and_no_code_stays_dead() -> None:
+    torch.manual_seed(0)
+    model = ProbTalk(TINY, DIM, BANDS, SPEAKERS, stage="vq").train()
+    q = model.vq.quantizer
+    x = _batch(8)
+    g = torch.Generator().manual_seed(1)
+    model.vq(x["motion"], g)  # first step: every code is dead and takes a latent of the batch
+    latents = q.split(model.vq.encoder(x["motion"])).detach().reshape(-1, TINY.groups, TINY.code_dim)
+    for group in range(TINY.groups):
+        dist = torch.cdist(q.codebooks[group], latents[:, group], compute_mode="donot_use_mm_for_euclid_dist")
+        assert float(dist.min(dim=1).values.max()) < 1e-5  # each code is one of the batch's latents
+    assert bool((q.usage >= 1.0).all())
+    before = q.codebooks.clone()
+    model.vq(x["motion"], g)
+    assert not torch.equal(before, q.codebooks)  # EMA moved them
+    model.eval()
+    frozen = q.codebooks.clone()
+    model.vq(x["motion"], g)
+    assert torch.equal(frozen, q.codebooks)  # no updates in eval mode
+
+
+def test_later_stages_freeze_the_earlier_ones() -> None:
+    torch.manual_seed(0)
+    model = ProbTalk(TINY, DIM, BANDS, SPEAKERS, stage="refiner").train()
+    assert not model.vq.training and not model.predictor.training and model.refiner.training
+    assert not any(p.requires_grad for p in model.vq.parameters())
+    assert not any(p.requires_grad for p in model.predictor.parameters())
+    assert model.vq.quantizer.updating is False
+    names = set(model.state_dict())
+    assert any(n.startswith("refiner.") for n in names) and not any(n.startswith("frozen") for n in names)
+    assert ProbTalk(TINY, DIM, BANDS, SPEAKERS, stage="vq").predictor is None
+
+
+def test_2d_positions_add_a_time_and_a_group_encoding() -> None:
+    model = ProbTalk(TINY, DIM, BANDS, SPEAKERS, stage="predictor")
+    pos = model.predictor.positions(12, torch.device("cpu"))
+    w = TINY.width
+    assert torch.allclose(pos[6], sinusoid(torch.tensor(1), w) + sinusoid(torch.tensor(2), w))  # t=1, g=2
+    flat = ProbTalk(TINY.__class__(**{**TINY.__dict__, "position": "1d"}), DIM, BANDS, SPEAKERS, stage="predictor")
+    assert torch.allclose(flat.predictor.positions(12, torch.device("cpu"))[6], sinusoid(torch.tensor(6), w))
+
+
+def _fake_logits(codes: int):
+    """Logits that depend on the tokens already decided, like a real predictor's."""
+    weights = np.random.default_rng(5).standard_normal((codes + 1, codes)) * 2.0
+
+    def fn(tokens: np.ndarray) -> np.ndarray:
+        context = weights[tokens].mean(axis=1, keepdims=True)
+        position = np.sin(np.arange(tokens.shape[1])[None, :, None] * np.arange(1, codes + 1) * 0.37)
+        return (context + 3.0 * position).astype(np.float32)
+
+    return fn
+
+
+@pytest.mark.parametrize("iterations", [1, 2, 8, 16])
+def test_numpy_maskgit_equals_the_torch_reference(iterations: int) -> None:
+    codes, length = 16, 24
+    fn = _fake_logits(codes)
+    rngs = [np.random.default_rng([7, k]) for k in range(3)]
+    got = numpy_maskgit_sample(fn, length, codes, iterations, rngs, temperature=0.8)
+    uniforms = torch.from_numpy(draw_uniforms([np.random.default_rng([7, k]) for k in range(3)], iterations, length))
+    want = maskgit_sample(
+        lambda t: torch.from_numpy(fn(t.numpy())), 3, length, TINY.__class__(codes=codes), iterations, uniforms, 0.8
+    )
+    assert np.array_equal(got, want.numpy())
+    assert got.min() >= 0 and got.max() < codes  # every token decided
+    alone = numpy_maskgit_sample(fn, length, codes, iterations, [np.random.default_rng([7, 1])], temperature=0.8)
+    assert np.array_equal(alone[0], got[1])  # a take does not depend on the takes beside it
+
+
+def test_maskgit_follows_the_cosine_schedule() -> None:
+    codes, length, iterations = 16, 40, 8
+    masked_seen: list[int] = []
+    fn = _fake_logits(codes)
+
+    def spy(tokens: np.ndarray) -> np.ndarray:
+        masked_seen.append(int((tokens == codes).sum()))
+        return fn(tokens)
+
+    numpy_maskgit_sample(spy, length, codes, iterations, [np.random.default_rng(0)])
+    expected = [length] + [remask_count(length, t, iterations) for t in range(iterations - 1)]
+    assert masked_seen == expected
+    assert expected[1] == math.floor(length * math.cos(math.pi / 16))
+    assert remask_count(length, iterations - 1, iterations) == 0
+
+
+def test_low_temperature_takes_the_most_likely_codes() -> None:
+    codes, length = 16, 24
+    fn = _fake_logits(codes)
+    cold = numpy_maskgit_sample(fn, length, codes, 1, [np.random.default_rng(0)], temperature=1e-4)
+    assert np.array_equal(cold[0], fn(np.full((1, length), codes)).argmax(-1)[0])
+    varied = {tuple(numpy_maskgit_sample(fn, length, codes, 4, [np.random.default_rng(s)])[0]) for s in range(4)}
+    assert len(varied) == 4
