@@ -106,24 +106,26 @@ class LearnedGenerator(Generator):
     def stream_takes(self, chunks: Iterable[AudioChunk], seeds: Sequence[int]) -> Iterator[tuple[MotionFrame, ...]]:
         plan, k = self.plan, len(seeds)
         mel = LogMelStream(2, self.mel_spec)
+        # Only what a later window still needs is kept, so memory stays constant however long the
+        # audio: audio[i] is frame a0 + i, motion[:, i] is frame m0 + i.
         audio = np.zeros((0, 2, self.mel_spec.bands), np.float32)
         motion = np.zeros((k, 0, rep.FEATURE_DIM), np.float32)
-        emitted, index, received = 0, 0, 0
+        a0 = m0 = emitted = index = received = 0
 
         def run(index: int, window_audio: np.ndarray) -> None:
             nonlocal motion
             start = plan.start(index)
-            context = motion[:, start : start + plan.context] if index > 0 and plan.context else None
+            context = motion[:, start - m0 : start - m0 + plan.context] if index > 0 and plan.context else None
             rngs = [np.random.default_rng([int(s) & 0xFFFFFFFF, index]) for s in seeds]
             out = np.asarray(self.run_window(window_audio, context, rngs), np.float32)
             keep = plan.context if index > 0 else 0
-            motion = np.concatenate([motion[:, : start + keep], out[:, keep:]], axis=1)
+            motion = np.concatenate([motion[:, : start + keep - m0], out[:, keep:]], axis=1)
 
         def frames(stop: int) -> Iterator[tuple[MotionFrame, ...]]:
             nonlocal emitted
             if stop <= emitted:
                 return
-            clips = [rep.decode(self.stats.denormalise(motion[t, emitted:stop])) for t in range(k)]
+            clips = [rep.decode(self.stats.denormalise(motion[t, emitted - m0 : stop - m0])) for t in range(k)]
             for i in range(stop - emitted):
                 frames_i = []
                 for clip in clips:
@@ -133,21 +135,34 @@ class LearnedGenerator(Generator):
                 yield tuple(frames_i)
             emitted = stop
 
+        def forget() -> None:
+            """Drop the frames before the next window that are already out."""
+            nonlocal audio, motion, a0, m0
+            next_start = plan.start(index)
+            keep_from = min(emitted, next_start)
+            motion, m0 = motion[:, keep_from - m0 :], keep_from
+            audio, a0 = audio[max(0, next_start - a0) :], max(a0, next_start)
+
         for chunk in chunks:
             received += len(chunk)
             audio = np.concatenate([audio, mel.push(np.stack([chunk.self_voice, chunk.other_voice], axis=1))])
-            while len(audio) >= plan.start(index) + plan.window:
-                run(index, audio[plan.start(index) : plan.start(index) + plan.window])
+            while a0 + len(audio) >= plan.start(index) + plan.window:
+                start = plan.start(index) - a0
+                run(index, audio[start : start + plan.window])
                 index += 1
                 yield from frames(plan.start(index - 1) + plan.window)
+                forget()
         total = motion_frames_for(received / ANALYSIS_RATE)
-        audio = np.concatenate([audio, mel.finish(total)])[:total] if total > len(audio) else audio[:total]
+        if total > a0 + len(audio):
+            audio = np.concatenate([audio, mel.finish(total)])
+        audio = audio[: max(0, total - a0)]
         while emitted < total:
             start = plan.start(index)
-            window_audio = audio[start : start + plan.window]
+            window_audio = audio[start - a0 : start - a0 + plan.window]
             if len(window_audio) < plan.window:
                 pad = np.repeat(self._silence[None], plan.window - len(window_audio), axis=0)
                 window_audio = np.concatenate([window_audio, pad])
             run(index, window_audio)
             index += 1
             yield from frames(min(total, start + plan.window))
+            forget()

@@ -36,6 +36,13 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
         metavar="KEY=VALUE",
         help="override one model or training setting (JSON value), repeatable",
     )
+    p.add_argument(
+        "--init",
+        type=Path,
+        default=None,
+        metavar="RUN",
+        help="start from the weights of another run or checkpoint of the model (e.g. its previous stage)",
+    )
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads per process (default 1)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -68,6 +75,7 @@ def run_train(args: argparse.Namespace) -> int:
             seed=args.seed,
             device=args.device,
             threads=args.threads,
+            init=args.init,
             progress=not args.no_progress,
             settings=parse_settings(args.settings),
         )

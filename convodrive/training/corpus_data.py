@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from convodrive.corpus import Corpus
 from convodrive.corpus.stats import feature_stats
 from convodrive.motion.representation import FeatureStats
@@ -32,3 +34,21 @@ def corpus_facts(corpus: Corpus) -> dict[str, Any]:
         "audio_features": corpus.mel_spec.to_dict(),
         "licence": corpus.manifest.get("licence") or source.get("licence") or "that of the corpus's source data",
     }
+
+
+def audio_stats(corpus: Corpus, split: str = "train") -> tuple[np.ndarray, np.ndarray]:
+    """Per-band mean and spread (bands,) of both voices' log-mel over a split: what a network
+    subtracts and divides by before it hears audio, so loud and quiet corpora look alike."""
+    count = 0
+    sums = squares = None
+    for conv in corpus.split(split):
+        mel = np.asarray(corpus.mel(conv.id), np.float64).reshape(-1, corpus.mel_spec.bands)
+        sums = mel.sum(0) if sums is None else sums + mel.sum(0)
+        squares = (mel**2).sum(0) if squares is None else squares + (mel**2).sum(0)
+        count += len(mel)
+    if sums is None or squares is None or count == 0:
+        bands = corpus.mel_spec.bands
+        return np.zeros(bands, np.float32), np.ones(bands, np.float32)
+    mean = sums / count
+    std = np.sqrt(np.maximum(squares / count - mean**2, 0.0))
+    return mean.astype(np.float32), np.maximum(std, 1e-3).astype(np.float32)

@@ -76,16 +76,19 @@ def _quiet() -> Any:
 
 def export_graph(spec: GraphSpec, path: Path, trace_size: int = 5) -> None:
     example = spec.example(trace_size, np.random.default_rng(0))
-    dims: dict[str, torch.export.Dim] = {}
+    dims: dict[str, Any] = {}
+
+    def dim(text: str) -> Any:
+        """``name``, or ``k*name`` for an axis that is always a multiple of k (a network that
+        downsamples by k), which the exporter must know to prove that its strided shapes agree."""
+        factor, _, name = text.rpartition("*")
+        base = dims.setdefault(name, torch.export.Dim(name, min=1, max=1 << 20))
+        return int(factor) * base if factor else base
+
     dynamic_shapes: dict[str, dict[int, Any] | None] = {}
     for name in spec.input_names:
         axes = spec.dynamic.get(name)
-        if axes:
-            dynamic_shapes[name] = {
-                a: dims.setdefault(d, torch.export.Dim(d, min=1, max=1 << 20)) for a, d in axes.items()
-            }
-        else:
-            dynamic_shapes[name] = None
+        dynamic_shapes[name] = {a: dim(d) for a, d in axes.items()} if axes else None
     with _quiet(), torch.no_grad():
         torch.onnx.export(
             spec.module,

@@ -26,7 +26,7 @@ from convodrive.training import distributed
 from convodrive.training.checkpoint import list_checkpoints, load_checkpoint, prune_checkpoints, save_checkpoint
 from convodrive.training.config import TrainConfig, to_dict
 from convodrive.training.logbook import Logbook
-from convodrive.training.recipe import Batch, Recipe, StepContext, TrainingData
+from convodrive.training.recipe import Batch, Recipe, StartingPoint, StepContext, TrainingData
 from convodrive.training.registry import get_preset, get_recipe
 
 
@@ -45,6 +45,9 @@ class TrainRequest:
     """torch threads per process on the CPU: one by default, as oversubscribed cores make every
     thread spin and wait (measured on a shared 2-core machine: 2 threads ran 9x slower than 1)."""
     progress: bool = True
+    init: Path | None = None
+    """A run or checkpoint of the same model to start from (e.g. its previous stage); a run that
+    resumes from its own checkpoints ignores it."""
     settings: dict[str, Any] = dataclasses.field(default_factory=dict)
     """Extra overrides of the model config or ``TrainConfig`` (``--set KEY=VALUE``)."""
 
@@ -131,7 +134,9 @@ def train(request: TrainRequest) -> TrainResult:
     torch.set_num_threads(request.threads)
     procs = distributed.start(request.device)
     try:
-        return _train(recipe, preset_name, stage, model_cfg, train_cfg, corpus, out, procs, request.progress)
+        return _train(
+            recipe, preset_name, stage, model_cfg, train_cfg, corpus, out, procs, request.progress, request.init
+        )
     finally:
         distributed.stop(procs)
 
@@ -161,6 +166,7 @@ def _train(
     out: Path,
     procs: distributed.Processes,
     show_progress: bool,
+    init: Path | None = None,
 ) -> TrainResult:
     if train_cfg.batch_size % procs.world_size:
         raise UserError(
@@ -188,6 +194,9 @@ def _train(
     net = recipe.build_model(model_cfg, data.spec, stage).to(procs.device)
     optimizer = torch.optim.AdamW(net.parameters(), lr=train_cfg.lr, weight_decay=train_cfg.weight_decay)
     step = 0
+    start = _starting_point(recipe, init) if resume is None and init is not None else None
+    if resume is None:
+        recipe.initialise(net, start, data.spec, stage)
     if resume is not None:
         from convodrive.training.checkpoint import load_weights
 
@@ -206,12 +215,14 @@ def _train(
             **identity,
             "train_config": to_dict(train_cfg),
             "corpus": str(corpus),
+            "init": _init_record(start, resume),
             "world_size": procs.world_size,
             "device": str(procs.device),
             "torch": torch.__version__,
             "python": platform.python_version(),
         }
         (out / "run.json").write_text(json.dumps(run_info, indent=2), encoding="utf-8")
+    init_record = _init_record(start, resume)
     logbook = Logbook(out, enabled=procs.is_main)
     progress = _Progress(f"train {recipe.name}", train_cfg.steps, step, show_progress and procs.is_main)
     last_ckpt: Path | None = existing[-1] if existing else None
@@ -224,6 +235,7 @@ def _train(
             "train_config": to_dict(train_cfg),
             "step": step,
             "corpus": str(corpus),
+            "init": init_record,
             "world_size": procs.world_size,
             "validation": validation,
             "torch": torch.__version__,
@@ -279,6 +291,21 @@ def _train(
     elapsed = time.monotonic() - started
     rate = (step - first_step) / elapsed if elapsed > 0 and step > first_step else 0.0
     return TrainResult(out, step, last_ckpt, validation, rate)
+
+
+def _starting_point(recipe: Recipe, path: Path) -> StartingPoint:
+    ckpt = load_checkpoint(path)
+    if ckpt.state.get("recipe") != recipe.name:
+        raise UserError(f"--init {path}: holds a '{ckpt.state.get('recipe')}' run, not '{recipe.name}'")
+    return StartingPoint(ckpt.path, str(ckpt.state["stage"]), ckpt.step, ckpt.model_weights(), ckpt.data_spec())
+
+
+def _init_record(start: StartingPoint | None, resume: Any) -> dict[str, Any] | None:
+    """Where a run's first weights came from, kept in run.json and every checkpoint (resumed runs
+    keep their first checkpoint's record)."""
+    if start is not None:
+        return {"path": str(start.path), "stage": start.stage, "step": start.step}
+    return resume.state.get("init") if resume is not None else None
 
 
 class _Progress:

@@ -16,6 +16,7 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 
+from convodrive.plumbing.errors import UserError
 from convodrive.training.config import Preset, TrainConfig
 
 Batch = dict[str, torch.Tensor]
@@ -57,7 +58,8 @@ class GraphSpec:
 
     ``example(size, rng)`` returns the inputs at one size (a sequence length, or a number of
     windows); export checks torch against ONNX Runtime at every size in ``parity_sizes``, so a
-    shape the exporter baked in is caught. ``dynamic`` maps an input name to {axis: axis name}.
+    shape the exporter baked in is caught. ``dynamic`` maps an input name to {axis: axis name};
+    ``"8*tokens"`` names an axis that is always 8 times the dimension ``tokens``.
     """
 
     name: str
@@ -68,6 +70,18 @@ class GraphSpec:
     dynamic: dict[str, dict[int, str]]
     parity_sizes: tuple[int, ...] = (1, 7, 33)
     description: str = ""
+
+
+@dataclasses.dataclass
+class StartingPoint:
+    """The weights of another run that a new run starts from (``--init``), e.g. the previous stage
+    of a model trained in stages. ``spec`` is the data that run learned from."""
+
+    path: Path
+    stage: str
+    step: int
+    weights: dict[str, torch.Tensor]
+    spec: DataSpec
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,6 +120,18 @@ class Recipe(abc.ABC):
 
     @abc.abstractmethod
     def build_model(self, config: Any, spec: DataSpec, stage: str) -> torch.nn.Module: ...
+
+    def initialise(self, model: torch.nn.Module, start: StartingPoint | None, spec: DataSpec, stage: str) -> None:
+        """Set a new run's first weights (not called when a run resumes). Default: with ``--init``,
+        copy every tensor whose name and shape match; a start that shares none is a mistake. A
+        recipe whose later stages need an earlier one's weights says so here."""
+        if start is None:
+            return
+        own = model.state_dict()
+        matched = {k: v for k, v in start.weights.items() if k in own and own[k].shape == v.shape}
+        if not matched:
+            raise UserError(f"--init {start.path}: shares no weights with model '{self.name}' ({stage} stage)")
+        model.load_state_dict(matched, strict=False)
 
     @abc.abstractmethod
     def loss(

@@ -16,6 +16,7 @@ from convodrive.training.recipe import Recipe
 
 RECIPES: dict[str, str] = {
     "fgd": "convodrive.training.recipes.fgd:FGDRecipe",
+    "probtalk": "convodrive.training.recipes.probtalk:ProbTalkRecipe",
 }
 
 

@@ -1,0 +1,442 @@
+"""Recipe ``probtalk``: the three stages of ``convodrive.models.probtalk``, trained one after another.
+
+    convodrive train probtalk --stage vq        --corpus C --out runs/vq
+    convodrive train probtalk --stage predictor --corpus C --out runs/predictor --init runs/vq
+    convodrive train probtalk --stage refiner   --corpus C --out runs/refiner   --init runs/predictor
+
+Each later stage starts from the previous one's run (``--init``) and keeps its networks frozen.
+Windows of ``window`` frames come from every take of the train split; each step crops them to a
+random length (so the short windows of the generator's ``live`` mode are trained too) and draws
+known-motion context the way the generator uses it: none, a block of ``context_frames`` at a
+random place (the reference's masks), or a prefix (the previous window's frames).
+
+Exported graphs, by stage: ``vq_encoder`` and ``vq_decoder`` (codes <-> motion); then
+``predictor_memory`` (the conditions of a window -> every layer's cross-attention keys and values
+and speaker modulation, run once per window) and ``predictor_step`` (tokens + that memory ->
+logits, run once per MaskGIT pass); then ``refiner``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from convodrive.models.probtalk import STAGES, ProbTalk, ProbTalkConfig, masked_l1
+from convodrive.motion import representation as rep
+from convodrive.plumbing.errors import UserError
+from convodrive.training.config import Preset
+from convodrive.training.corpus_data import audio_stats, corpus_facts, open_corpus, train_stats
+from convodrive.training.recipe import Batch, DataSpec, GraphSpec, Recipe, StartingPoint, StepContext, TrainingData
+from convodrive.training.windows import CorpusWindows
+
+_SMALL = {
+    "code_dim": 64,
+    "vq_channels": [128, 128, 256, 256],
+    "vq_layers": 1,
+    "context_channels": [64, 64, 128, 128],
+    "audio_channels": 128,
+    "width": 256,
+    "heads": 4,
+    "layers": 4,
+    "feedforward": 768,
+    "refiner_width": 192,
+    "refiner_heads": 4,
+    "refiner_layers": 3,
+    "refiner_feedforward": 576,
+    "speaker_dim": 64,
+}
+_TINY = {
+    "codes": 16,
+    "code_dim": 8,
+    "vq_channels": [16, 16, 16, 16],
+    "vq_layers": 1,
+    "context_channels": [8, 8, 8, 8],
+    "audio_channels": 8,
+    "width": 16,
+    "heads": 2,
+    "layers": 1,
+    "feedforward": 32,
+    "refiner_width": 16,
+    "refiner_heads": 2,
+    "refiner_layers": 1,
+    "refiner_feedforward": 32,
+    "speaker_dim": 8,
+    "window": 48,
+    "min_window": 16,
+    "context_frames": 12,
+}
+
+
+class ProbTalkRecipe(Recipe):
+    name = "probtalk"
+    description = (
+        "ProbTalk (Liu et al., CVPR 2024): a product-quantised VAE of face and body motion (G codebooks of K codes, "
+        "8 frames a token), a MaskGIT transformer over the (token x group) grid with a 2D sinusoidal position, "
+        "conditioned on both voices' log-mel, the known motion context and the speaker, and a refiner that restores "
+        "the detail quantisation lost."
+    )
+    ModelConfig = ProbTalkConfig
+    stages = STAGES
+    presets = {
+        "paper": Preset(
+            "the reference implementation's sizes: 512-d, 8 heads, 6 layers, PQ-VAE 256-1024 channels, K=128, G=4",
+            {},
+            {"batch_size": 128, "lr": 1e-4, "steps": 20000, "warmup_steps": 500, "decay_steps": 19500},
+        ),
+        "small": Preset(
+            "the shipped model: 256-d predictor (4 layers), 192-d refiner (3 layers), PQ-VAE 128-256 channels",
+            _SMALL,
+            {"batch_size": 32, "lr": 5e-4, "steps": 3000, "warmup_steps": 100, "decay_steps": 2900, "val_every": 500},
+        ),
+        "tiny": Preset(
+            "for tests: a few units, 48-frame windows",
+            _TINY,
+            {
+                "batch_size": 4,
+                "lr": 1e-3,
+                "steps": 6,
+                "warmup_steps": 1,
+                "log_every": 2,
+                "val_every": 3,
+                "checkpoint_every": 3,
+            },
+        ),
+    }
+    default_preset = "small"
+
+    # -- data ------------------------------------------------------------------------------------
+    def load_data(self, corpus: Path, config: ProbTalkConfig, stage: str) -> TrainingData:
+        try:
+            config.check()
+        except ValueError as exc:
+            raise UserError(f"model 'probtalk': {exc}") from None
+        opened = open_corpus(corpus)
+        stats = train_stats(opened)
+        audio_mean, audio_std = audio_stats(opened, "train")
+        spec = DataSpec(
+            info={
+                "layout": rep.layout(),
+                "corpus": corpus_facts(opened),
+                "speakers": list(opened.speakers),
+                "window": config.window,
+                "frames_per_token": config.frames_per_token,
+            },
+            arrays={"mean": stats.mean, "std": stats.std, "audio_mean": audio_mean, "audio_std": audio_std},
+        )
+        train = CorpusWindows(opened, "train", config.window, max(1, config.window // 8), stats)
+        val = CorpusWindows(opened, "val", config.window, config.window, stats, takes=1)
+        return TrainingData(train=train, val=val if len(val) else None, spec=spec)
+
+    def build_model(self, config: ProbTalkConfig, spec: DataSpec, stage: str) -> torch.nn.Module:
+        bands = int(spec.info["corpus"]["audio_features"]["bands"])
+        model = ProbTalk(config, rep.FEATURE_DIM, bands, len(spec.info["speakers"]), stage)
+        model.audio_norm.mean.copy_(torch.from_numpy(spec.arrays["audio_mean"]))
+        model.audio_norm.std.copy_(torch.from_numpy(spec.arrays["audio_std"]))
+        return model
+
+    def initialise(self, model: torch.nn.Module, start: StartingPoint | None, spec: DataSpec, stage: str) -> None:
+        """A later stage starts from the previous stage's run, learnt on the same data."""
+        assert isinstance(model, ProbTalk)
+        needed = model.frozen_names
+        if not needed:
+            super().initialise(model, start, spec, stage)
+            return
+        previous = STAGES[STAGES.index(stage) - 1]
+        if start is None:
+            raise UserError(f"model 'probtalk': the {stage} stage starts from a trained {previous} stage: --init RUN")
+        for key in ("mean", "std", "audio_mean", "audio_std"):
+            if not np.allclose(start.spec.arrays[key], spec.arrays[key], atol=1e-5):
+                raise UserError(
+                    f"--init {start.path}: learnt from other data (its normalisation differs from this corpus's)"
+                )
+        own = model.state_dict()
+        for name in needed:
+            keys = [k for k in own if k.startswith(f"{name}.")]
+            bad = [k for k in keys if k not in start.weights or start.weights[k].shape != own[k].shape]
+            if bad:
+                raise UserError(
+                    f"--init {start.path}: holds no {name} network of these settings (a {start.stage} run; "
+                    f"mismatch at {bad[0]}): train stage {previous} first, with the same preset"
+                )
+        super().initialise(model, start, spec, stage)
+
+    # -- training --------------------------------------------------------------------------------
+    def loss(
+        self, model: torch.nn.Module, batch: Batch, ctx: StepContext
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        assert isinstance(model, ProbTalk)
+        if model.stage == "vq":
+            return model.vq.loss(batch["motion"], batch["mask"], ctx.generator)
+        batch = crop(batch, model.config, ctx.generator)
+        known = context_masks(batch["motion"].shape[0], batch["motion"].shape[1], model.config, ctx.generator)
+        if model.stage == "predictor":
+            return predictor_loss(model, batch, known, ctx.generator)
+        return refiner_loss(model, batch, known, ctx.generator)
+
+    def validate(
+        self, model: torch.nn.Module, data: TrainingData, config: ProbTalkConfig, stage: str
+    ) -> dict[str, float]:
+        if data.val is None or len(data.val) == 0:
+            return {}
+        totals: dict[str, float] = {}
+        index = np.arange(min(len(data.val), 128))
+        chunks = [index[i : i + 16] for i in range(0, len(index), 16)]
+        for i, chunk in enumerate(chunks):
+            ctx = StepContext(i, 0, 1, torch.Generator().manual_seed(1000 + i))
+            loss, figures = self.loss(model, data.val.batch(chunk), ctx)
+            for name, value in {"loss": loss, **figures}.items():
+                totals[name] = totals.get(name, 0.0) + float(value) / len(chunks)
+        return totals
+
+    # -- export ----------------------------------------------------------------------------------
+    def export_graphs(
+        self, model: torch.nn.Module, config: ProbTalkConfig, spec: DataSpec, stage: str
+    ) -> Sequence[GraphSpec]:
+        assert isinstance(model, ProbTalk)
+        return export_graphs(model, spec)
+
+    def card(self, config: ProbTalkConfig, spec: DataSpec) -> str:
+        speakers = ", ".join(spec.info.get("speakers", []))
+        return (
+            f"{self.description}\n\nPartner audio {'heard' if config.dyadic else 'not heard'} (dyadic={config.dyadic}); "
+            f"{config.position} positions; G={config.groups}, K={config.codes}, {config.frames_per_token} frames a token; "
+            f"predictor {config.width}-d x {config.layers} layers, refiner {config.refiner_width}-d x "
+            f"{config.refiner_layers} layers; trained on {config.window}-frame windows. Speakers: {speakers}.\n\n"
+            "Use: `convodrive drive AUDIO --generator probtalk -G model=THIS_FOLDER` (options: iterations, temperature, "
+            "speaker, window, context, dyadic, mode, refine)."
+        )
+
+
+# ----------------------------------------------------------------------------------- the stages
+def crop(batch: Batch, config: ProbTalkConfig, generator: torch.Generator) -> Batch:
+    """The batch cut to one random length (half the time the whole window), a multiple of a token."""
+    frames = batch["motion"].shape[1]
+    f = config.frames_per_token
+    if float(torch.rand((), generator=generator)) < 0.5 or frames <= config.min_window:
+        return batch
+    lengths = list(range(config.min_window, frames + 1, f))
+    length = lengths[int(torch.randint(len(lengths), (), generator=generator))]
+    start = int(torch.randint(frames - length + 1, (), generator=generator))
+    return {k: v[:, start : start + length] if k in ("motion", "audio") else v for k, v in batch.items()}
+
+
+def context_masks(batch: int, frames: int, config: ProbTalkConfig, generator: torch.Generator) -> torch.Tensor:
+    """(B, frames, 1) known-frame masks: a quarter none, a quarter a block of ``context_frames`` at a
+    random place (the reference's), half a prefix (the previous window's frames: ``context_frames``
+    or a random length)."""
+    kind = torch.rand(batch, generator=generator)
+    t = torch.arange(frames)
+    masks = torch.zeros(batch, frames, 1)
+    block = max(1, min(config.context_frames, frames - 1))
+    for b in range(batch):
+        if kind[b] < 0.25:
+            continue
+        if kind[b] < 0.5:
+            start = int(torch.randint(frames - block + 1, (), generator=generator))
+            masks[b, :, 0] = ((t >= start) & (t < start + block)).float()
+        else:
+            upper = max(2, frames - config.frames_per_token)
+            random_length = int(torch.randint(1, upper, (), generator=generator))
+            length = block if kind[b] < 0.75 else random_length
+            masks[b, :length, 0] = 1.0
+    return masks
+
+
+def predictor_loss(
+    model: ProbTalk, batch: Batch, known: torch.Tensor, generator: torch.Generator
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """MaskGIT's objective: mask a cosine-distributed fraction of each window's codes, predict them."""
+    assert model.predictor is not None
+    config = model.config
+    motion = batch["motion"] * batch["mask"]
+    with torch.no_grad():
+        target = model.vq.encode(motion).flatten(1)  # (B, N)
+    b, n = target.shape
+    ratio = torch.cos(torch.rand(b, generator=generator) * (math.pi / 2))
+    count = torch.ceil(ratio * n).clamp(min=1).long()
+    rank = torch.rand(b, n, generator=generator).argsort(dim=1).argsort(dim=1)
+    masked = rank < count[:, None]
+    tokens = torch.where(masked, torch.full_like(target, config.mask_id), target)
+    audio = model.audio_norm(batch["audio"])
+    logits = model.predictor(tokens, audio, motion, known, batch["speaker"])
+    loss = F.cross_entropy(logits[masked], target[masked])
+    accuracy = (logits[masked].argmax(-1) == target[masked]).float().mean()
+    return loss, {"accuracy": accuracy.detach()}
+
+
+def refiner_loss(
+    model: ProbTalk, batch: Batch, known: torch.Tensor, generator: torch.Generator
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """L1 of the refined unknown frames against the truth, and of velocities everywhere (so the seam
+    with the known frames counts), refining noisy VQ reconstructions (the reference's recipe)."""
+    assert model.refiner is not None
+    config = model.config
+    motion, mask = batch["motion"], batch["mask"]
+    with torch.no_grad():
+        coarse = model.vq.decode(model.vq.encode(motion * mask))
+        coarse = coarse + config.refiner_noise * torch.randn(coarse.shape, generator=generator)
+    combined = known * motion + (1 - known) * coarse
+    refined = model.refiner(combined, model.audio_norm(batch["audio"]), known, batch["speaker"])
+    free = mask * (1 - known)
+    rec = masked_l1(refined, motion, free)
+    vel = masked_l1(refined.diff(dim=1), motion.diff(dim=1), mask)
+    coarse_l1 = masked_l1(combined, motion, free)
+    return rec + config.velocity_weight * vel, {"l1": rec.detach(), "velocity": vel.detach(), "coarse_l1": coarse_l1}
+
+
+# --------------------------------------------------------------------------------------- export
+class _Encoder(nn.Module):
+    def __init__(self, model: ProbTalk) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, motion: torch.Tensor) -> torch.Tensor:
+        return self.model.vq.encode(motion)
+
+
+class _Decoder(_Encoder):
+    def forward(self, codes: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
+        return self.model.vq.decode(codes)
+
+
+class _Memory(_Encoder):
+    def forward(  # type: ignore[override]
+        self, audio: torch.Tensor, known: torch.Tensor, known_mask: torch.Tensor, speaker: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        assert self.model.predictor is not None
+        return self.model.predictor.memory(self.model.audio_norm(audio), known, known_mask, speaker)
+
+
+class _Step(_Encoder):
+    def forward(  # type: ignore[override]
+        self, tokens: torch.Tensor, keys: torch.Tensor, values: torch.Tensor, styles: torch.Tensor
+    ) -> torch.Tensor:
+        assert self.model.predictor is not None
+        return self.model.predictor.logits(tokens, keys, values, styles)
+
+
+class _Refiner(_Encoder):
+    def forward(  # type: ignore[override]
+        self, motion: torch.Tensor, audio: torch.Tensor, known_mask: torch.Tensor, speaker: torch.Tensor
+    ) -> torch.Tensor:
+        assert self.model.refiner is not None
+        return self.model.refiner(motion, self.model.audio_norm(audio), known_mask, speaker)
+
+
+def export_graphs(model: ProbTalk, spec: DataSpec) -> list[GraphSpec]:
+    """The graphs of every stage ``model`` has; example sizes count tokens (8 frames each)."""
+    config, dim = model.config, rep.FEATURE_DIM
+    bands = int(spec.info["corpus"]["audio_features"]["bands"])
+    speakers = max(1, len(spec.info["speakers"]))
+    f, g = config.frames_per_token, config.groups
+    takes = 2
+
+    def f32(rng: np.random.Generator, *shape: int) -> torch.Tensor:
+        return torch.from_numpy(rng.standard_normal(shape).astype(np.float32))
+
+    def known_mask(rng: np.random.Generator, frames: int) -> torch.Tensor:
+        m = np.zeros((takes, frames, 1), np.float32)
+        m[0, : int(rng.integers(frames + 1))] = 1.0
+        return torch.from_numpy(m)
+
+    def codes(rng: np.random.Generator, tokens: int) -> torch.Tensor:
+        return torch.from_numpy(rng.integers(config.codes, size=(takes, tokens, g)))
+
+    def speaker(rng: np.random.Generator) -> torch.Tensor:
+        return torch.from_numpy(rng.integers(speakers, size=takes))
+
+    def audio(rng: np.random.Generator, frames: int) -> torch.Tensor:
+        return torch.from_numpy((rng.standard_normal((takes, frames, 2, bands)) * 3 - 8).astype(np.float32))
+
+    frames_axes = {0: "takes", 1: "frames"}
+    token_frames = {0: "takes", 1: f"{f}*tokens"}  # a network that downsamples by f takes whole tokens
+    graphs = [
+        GraphSpec(
+            "vq_decoder",
+            _Decoder(model).eval(),
+            ("codes",),
+            ("motion",),
+            lambda n, rng: (codes(rng, n),),
+            {"codes": {0: "takes", 1: "tokens"}},
+            description=f"(takes, tokens, {g}) codes -> (takes, {f}*tokens, {dim}) normalised motion",
+        )
+    ]
+    if model.stage == "vq":
+        graphs.insert(
+            0,
+            GraphSpec(
+                "vq_encoder",
+                _Encoder(model).eval(),
+                ("motion",),
+                ("codes",),
+                lambda n, rng: (f32(rng, takes, f * n, dim),),
+                {"motion": token_frames},
+                description=f"(takes, frames, {dim}) normalised motion, frames a multiple of {f} -> (takes, frames/{f}, {g}) codes",
+            ),
+        )
+    if model.predictor is not None:
+        heads, width, layers = config.heads, config.width, config.layers
+
+        def memory_inputs(n: int, rng: np.random.Generator) -> tuple[torch.Tensor, ...]:
+            frames = f * n
+            return audio(rng, frames), f32(rng, takes, frames, dim), known_mask(rng, frames), speaker(rng)
+
+        def step_inputs(n: int, rng: np.random.Generator) -> tuple[torch.Tensor, ...]:
+            tokens = rng.integers(config.codes + 1, size=(takes, n * g))
+            kv = (layers, takes, heads, n, width // heads)
+            return (
+                torch.from_numpy(tokens),
+                f32(rng, *kv),
+                f32(rng, *kv),
+                f32(rng, layers, takes, 6, width) * 0.1,
+            )
+
+        kv_axes = {1: "takes", 3: "memory"}
+        graphs += [
+            GraphSpec(
+                "predictor_memory",
+                _Memory(model).eval(),
+                ("audio", "known", "known_mask", "speaker"),
+                ("keys", "values", "styles"),
+                memory_inputs,
+                {"audio": token_frames, "known": token_frames, "known_mask": token_frames, "speaker": {0: "takes"}},
+                description=(
+                    f"once per window: (takes, frames, 2, {bands}) log-mel, (takes, frames, {dim}) known motion, "
+                    f"(takes, frames, 1) known mask, (takes,) speaker -> per layer cross-attention keys and values "
+                    f"({layers}, takes, {heads}, frames/{f}, {width // heads}) and speaker modulation ({layers}, takes, 6, {width})"
+                ),
+            ),
+            GraphSpec(
+                "predictor_step",
+                _Step(model).eval(),
+                ("tokens", "keys", "values", "styles"),
+                ("logits",),
+                step_inputs,
+                {"tokens": {0: "takes", 1: "tokens"}, "keys": kv_axes, "values": kv_axes, "styles": {1: "takes"}},
+                description=f"once per MaskGIT pass: (takes, tokens*{g}) ids ({config.mask_id} = masked) and the memory -> (takes, tokens*{g}, {config.codes}) logits",
+            ),
+        ]
+    if model.refiner is not None:
+
+        def refiner_inputs(n: int, rng: np.random.Generator) -> tuple[torch.Tensor, ...]:
+            frames = f * n + int(rng.integers(f))  # the refiner takes any number of frames
+            return f32(rng, takes, frames, dim), audio(rng, frames), known_mask(rng, frames), speaker(rng)
+
+        graphs.append(
+            GraphSpec(
+                "refiner",
+                _Refiner(model).eval(),
+                ("motion", "audio", "known_mask", "speaker"),
+                ("refined",),
+                refiner_inputs,
+                {"motion": frames_axes, "audio": frames_axes, "known_mask": frames_axes, "speaker": {0: "takes"}},
+                description=f"(takes, frames, {dim}) coarse motion with known frames in, log-mel, known mask, speaker -> refined motion",
+            )
+        )
+    return graphs
