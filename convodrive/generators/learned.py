@@ -23,10 +23,10 @@ import numpy as np
 
 from convodrive.audio.features import frame_edge
 from convodrive.audio.logmel import LogMelStream, MelSpec, log_mel
-from convodrive.audio.source import ANALYSIS_RATE, AudioChunk, motion_frames_for
-from convodrive.generators.base import Generator
+from convodrive.audio.source import ANALYSIS_RATE, AudioChunk, DyadicAudio, motion_frames_for
+from convodrive.generators.base import Generator, take_seed
 from convodrive.motion import representation as rep
-from convodrive.motion.clip import MotionFrame
+from convodrive.motion.clip import MotionClip, MotionFrame
 from convodrive.neural import Graph, ModelFolder, SessionOptions, load_model_folder
 from convodrive.neural.windows import WindowPlan
 from convodrive.plugins.options import PluginOptions, option
@@ -108,9 +108,11 @@ class LearnedGenerator(Generator):
         mel = LogMelStream(2, self.mel_spec)
         # Only what a later window still needs is kept, so memory stays constant however long the
         # audio: audio[i] is frame a0 + i, motion[:, i] is frame m0 + i.
-        audio = np.zeros((0, 2, self.mel_spec.bands), np.float32)
+        # The first window starts plan.context frames early, over silence (see WindowPlan).
+        audio = np.repeat(self._silence[None], plan.context, axis=0).astype(np.float32)
         motion = np.zeros((k, 0, rep.FEATURE_DIM), np.float32)
-        a0 = m0 = emitted = index = received = 0
+        a0 = m0 = plan.start(0)
+        emitted = index = received = 0
 
         def run(index: int, window_audio: np.ndarray) -> None:
             nonlocal motion
@@ -166,3 +168,12 @@ class LearnedGenerator(Generator):
             index += 1
             yield from frames(min(total, start + plan.window))
             forget()
+
+    def generate(self, audio: DyadicAudio, seed: int = 0, num_samples: int = 1) -> list[MotionClip]:
+        """Offline: all takes in one batched pass (each take is what ``stream`` with its seed gives)."""
+        seeds = [take_seed(seed, i) for i in range(num_samples)]
+        per_frame = list(self.stream_takes(audio.chunks(), seeds))
+        return [
+            MotionClip.from_frames([frames[i] for frames in per_frame], metadata={"generator": self.name, "seed": s})
+            for i, s in enumerate(seeds)
+        ]

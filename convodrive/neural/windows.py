@@ -1,10 +1,12 @@
 """How a learned generator cuts a stream into model calls: fixed windows that overlap by a context.
 
-Window i covers frames ``[i*hop, i*hop + window)`` with ``hop = window - context``. Its first
+Window i covers frames ``[i*hop - context, (i+1)*hop)`` with ``hop = window - context``. Its first
 ``context`` frames are the previous window's output, given to the model as known motion (the
-papers' continuation by inpainting); it generates the rest. So once window i has run, every frame
-before ``i*hop + window`` is final, and a frame waits at most ``window - context - 1`` frames of
-audio beyond itself: the generator's declared look-ahead (plus its audio features' own).
+papers' continuation by inpainting); it generates the ``hop`` frames after them. The first window
+starts ``context`` frames before the audio (over silence, with nothing known), so that it too
+ends ``hop`` frames after its first new frame: once window i has run, every frame before
+``(i+1)*hop`` is final, and any frame waits at most ``hop - 1`` frames of audio beyond itself, the
+generator's declared look-ahead (plus its audio features' own), from the first frame on.
 """
 
 from __future__ import annotations
@@ -28,7 +30,8 @@ class WindowPlan:
         return self.window - self.context
 
     def start(self, index: int) -> int:
-        return index * self.hop
+        """First frame of window ``index`` (negative for the first window when it has a context)."""
+        return index * self.hop - self.context
 
     @property
     def lookahead_frames(self) -> int:
@@ -37,6 +40,4 @@ class WindowPlan:
 
     def windows_for(self, num_frames: int) -> int:
         """Windows that cover ``num_frames`` frames (the last may run past the end, padded)."""
-        if num_frames <= self.window:
-            return 1
-        return 1 + -(-(num_frames - self.window) // self.hop)
+        return max(1, -(-num_frames // self.hop))

@@ -250,6 +250,44 @@ def export_model(
     return ExportResult(out, parity_report, int8_report or None)
 
 
+def export_untrained(
+    model: str,
+    spec: DataSpec,
+    out: str | Path,
+    preset: str | None = None,
+    stage: str | None = None,
+    int8: bool = False,
+    seed: int = 0,
+) -> ExportResult:
+    """A model folder of freshly initialised weights (the last stage unless ``stage``), for
+    benchmarks of speed, which the weights do not change; ``spec`` stands in for a corpus."""
+    from convodrive.training.checkpoint import save_checkpoint
+    from convodrive.training.config import to_dict
+    from convodrive.training.registry import get_preset
+
+    recipe = get_recipe(model)
+    preset_name, chosen = get_preset(recipe, preset)
+    stage = stage or recipe.stages[-1]
+    config = recipe.model_config(chosen.model)
+    torch.manual_seed(seed)
+    net = recipe.build_model(config, spec, stage)
+    state = {
+        "recipe": recipe.name,
+        "preset": preset_name,
+        "stage": stage,
+        "model_config": to_dict(config),
+        "train_config": to_dict(recipe.train_config(chosen.train)),
+        "step": 0,
+        "corpus": None,
+        "world_size": 1,
+        "validation": {},
+        "torch": torch.__version__,
+    }
+    with tempfile.TemporaryDirectory(prefix="untrained-") as tmp:
+        checkpoint = save_checkpoint(Path(tmp), net, torch.optim.AdamW(net.parameters()), spec, state)
+        return export_model(checkpoint, out, int8=int8)
+
+
 def model_card(recipe: Recipe, config: Any, spec: DataSpec, meta: dict[str, Any]) -> str:
     training = meta["training"]
     corpus = spec.info.get("corpus", {}) if isinstance(spec.info.get("corpus"), dict) else {}

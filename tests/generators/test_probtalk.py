@@ -1,0 +1,225 @@
+"""probtalk end to end on a tiny corpus: three stages trained through the CLI, exported with
+parity, and driven. The runtime's MaskGIT loop over the exported graphs samples the codes the torch
+networks sample; streaming equals offline; K takes in one batch equal K single takes; windows
+continue from their context; memory stays constant on long audio; options and mistakes."""
+
+from __future__ import annotations
+
+import json
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from convodrive.audio.source import AudioChunk, DyadicAudio
+from convodrive.generators.probtalk import ProbTalkGenerator
+from convodrive.motion import representation as rep
+from convodrive.neural.maskgit import draw_uniforms
+from convodrive.neural.maskgit import maskgit_sample as numpy_maskgit_sample
+from tests.conftest import REPO, require, run_cli
+from tests.corpora import turn_taking_audio
+
+pytestmark = [require("torch"), require("onnxruntime")]
+
+TINY = ["--preset", "tiny", "--device", "cpu", "--no-progress"]
+
+
+@pytest.fixture(scope="module")
+def stages(tiny_corpus: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Runs of the three stages, each from the previous, and the export of the last."""
+    root = tmp_path_factory.mktemp("probtalk")
+    runs: dict[str, Path] = {}
+    previous: list[str] = []
+    for stage in ("vq", "predictor", "refiner"):
+        runs[stage] = root / stage
+        trained = run_cli(
+            "train",
+            "probtalk",
+            "--stage",
+            stage,
+            "--corpus",
+            str(tiny_corpus),
+            *TINY,
+            "--out",
+            str(runs[stage]),
+            *previous,
+        )
+        assert trained.returncode == 0, trained.stderr
+        previous = ["--init", str(runs[stage])]
+    exported = run_cli("export", str(runs["refiner"]), "--out", str(root / "model"))
+    assert exported.returncode == 0, exported.stderr
+    runs["model"] = root / "model"
+    return runs
+
+
+def _audio(seconds: float, seed: int = 7) -> DyadicAudio:
+    voices = turn_taking_audio(seconds, seed=seed)
+    return DyadicAudio(voices[:, 0], voices[:, 1])
+
+
+def test_the_export_holds_every_stage_with_parity(stages: dict[str, Path]) -> None:
+    meta = json.loads((stages["model"] / "model.json").read_text())
+    assert set(meta["graphs"]) == {"vq_decoder", "predictor_memory", "predictor_step", "refiner"}
+    for graph, errors in meta["parity"]["max_abs_err"].items():
+        assert len(errors) >= 3 and max(errors.values()) <= 1e-4, graph
+    assert meta["features"]["speakers"] == ["calm", "lively"]
+    state = json.loads(next((stages["refiner"] / "checkpoints").iterdir()).joinpath("state.json").read_text())
+    assert state["init"]["stage"] == "predictor"
+    card = (stages["model"] / "MODEL_CARD.md").read_text()
+    assert "ProbTalk" in card and "Speakers: calm, lively" in card
+
+
+def test_later_stages_need_the_earlier_one(stages: dict[str, Path], tiny_corpus: Path, tmp_path: Path) -> None:
+    alone = run_cli(
+        "train", "probtalk", "--stage", "refiner", "--corpus", str(tiny_corpus), *TINY, "--out", str(tmp_path / "r")
+    )
+    assert alone.returncode == 2 and "--init RUN" in alone.stderr and len(alone.stderr.splitlines()) == 1
+    assert not (tmp_path / "r").exists()
+    skipped = run_cli(
+        "train", "probtalk", "--stage", "refiner", "--corpus", str(tiny_corpus), *TINY, "--out", str(tmp_path / "s"),
+        "--init", str(stages["vq"]),
+    )  # fmt: skip
+    assert skipped.returncode == 2 and "holds no predictor network" in skipped.stderr
+    other = run_cli("train", "probtalk", "--stage", "predictor", "--corpus", str(tiny_corpus), *TINY,
+                    "--set", "codes=8", "--out", str(tmp_path / "o"), "--init", str(stages["vq"]))  # fmt: skip
+    assert other.returncode == 2 and "holds no vq network of these settings" in other.stderr
+
+
+def test_runtime_maskgit_samples_the_codes_torch_samples(stages: dict[str, Path], tiny_corpus: Path) -> None:
+    from convodrive.models.probtalk import maskgit_sample
+    from convodrive.training.export import restore
+
+    _, _, config, _, net = restore(stages["refiner"])
+    gen = ProbTalkGenerator({"model": str(stages["model"])})
+    rng = np.random.default_rng(0)
+    frames, takes, iterations = 48, 3, 8
+    audio = (rng.standard_normal((takes, frames, 2, 80)) * 3 - 8).astype(np.float32)
+    known = rng.standard_normal((takes, frames, rep.FEATURE_DIM)).astype(np.float32)
+    known_mask = np.zeros((takes, frames, 1), np.float32)
+    known_mask[:, :12] = 1
+    speaker = np.array([0, 1, 0])
+    memory = gen.memory(audio=audio, known=known, known_mask=known_mask, speaker=speaker)
+    length = frames // 8 * config.groups
+    seeds = [np.random.default_rng([3, k]) for k in range(takes)]
+    ours = numpy_maskgit_sample(
+        lambda t: gen.step(tokens=t, **memory)["logits"], length, config.codes, iterations, seeds
+    )
+    with torch.no_grad():
+        kv = net.predictor.memory(
+            net.audio_norm(torch.from_numpy(audio)), torch.from_numpy(known), torch.from_numpy(known_mask),
+            torch.from_numpy(speaker),
+        )  # fmt: skip
+        uniforms = torch.from_numpy(
+            draw_uniforms([np.random.default_rng([3, k]) for k in range(takes)], iterations, length)
+        )
+        theirs = maskgit_sample(lambda t: net.predictor.logits(t, *kv), takes, length, config, iterations, uniforms)
+    assert (ours == theirs.numpy()).mean() >= 0.98
+
+
+def test_stream_equals_generate_and_takes_batch(stages: dict[str, Path]) -> None:
+    audio = _audio(5.3)
+    gen = ProbTalkGenerator({"model": str(stages["model"]), "window": 40, "context": 16})
+    assert gen.plan.window == 40 and gen.plan.context == 16
+    offline = gen.generate(audio, seed=5, num_samples=3)
+    assert [c.num_frames for c in offline] == [audio.num_frames] * 3 == [159] * 3  # seven windows
+    for chunk in (160, 2345):
+        frames = list(gen.stream(audio.chunks(chunk), seed=5))
+        np.testing.assert_array_equal(np.stack([f.pose for f in frames]), offline[0].pose)
+        np.testing.assert_array_equal(np.stack([f.face for f in frames]), offline[0].face)
+    alone = gen.generate(audio, seed=5 + 7919)[0]  # take 1's seed, run by itself
+    np.testing.assert_allclose(alone.pose, offline[1].pose, atol=1e-5)
+    assert np.abs(offline[0].pose - offline[1].pose).max() > 1e-3  # takes differ
+
+
+def test_each_window_continues_from_its_context(stages: dict[str, Path]) -> None:
+    gen = ProbTalkGenerator({"model": str(stages["model"]), "window": 40, "context": 16})
+    contexts: list[np.ndarray | None] = []
+    outputs: list[np.ndarray] = []
+    run = gen.run_window
+
+    def spy(audio, context, rngs):  # type: ignore[no-untyped-def]
+        out = run(audio, context, rngs)
+        contexts.append(None if context is None else context.copy())
+        outputs.append(out.copy())
+        if context is not None:
+            np.testing.assert_array_equal(out[:, : context.shape[1]], context)  # known frames kept
+        return out
+
+    gen.run_window = spy  # type: ignore[method-assign]
+    clip = gen.generate(_audio(5.3))[0]
+    assert len(outputs) == 7 == gen.plan.windows_for(159) and contexts[0] is None
+    for i in range(1, 7):
+        np.testing.assert_array_equal(contexts[i], outputs[i - 1][:, 24:40])  # the previous window's last 16
+    last = rep.decode(gen.stats.denormalise(outputs[6][0, 16 : 159 - 128]))  # window 6 starts at frame 128
+    np.testing.assert_allclose(clip.pose[144:159], last.pose, atol=1e-5)  # the stream is the windows' output
+
+
+def test_live_mode_declares_its_lookahead_and_keeps_it(stages: dict[str, Path]) -> None:
+    gen = ProbTalkGenerator({"model": str(stages["model"]), "mode": "live"})
+    assert gen.plan.window == 48 and gen.plan.context == 36
+    assert gen.lookahead_frames / 30 <= 0.5
+    audio = _audio(4.0)
+    received = 0
+
+    def chunks():  # type: ignore[no-untyped-def]
+        nonlocal received
+        for chunk in audio.chunks(400):
+            received += len(chunk)
+            yield chunk
+
+    for k, _ in enumerate(gen.stream(chunks(), seed=0)):
+        if received < len(audio.self_voice):  # before the end, frame k may only need audio to k + look-ahead
+            assert received <= (k + gen.lookahead_frames + 1) / 30 * 16000 + 400
+
+
+def test_dyadic_and_refine_options(stages: dict[str, Path]) -> None:
+    audio = _audio(3.0)
+    other = DyadicAudio(audio.self_voice, audio.other_voice[::-1].copy())
+    model = str(stages["model"])
+    heard = ProbTalkGenerator({"model": model})
+    deaf = ProbTalkGenerator({"model": model, "dyadic": False})
+    assert np.abs(heard.generate(audio)[0].pose - heard.generate(other)[0].pose).max() > 1e-4
+    np.testing.assert_array_equal(deaf.generate(audio)[0].pose, deaf.generate(other)[0].pose)
+    coarse = ProbTalkGenerator({"model": model, "refine": False})
+    assert coarse.refiner is None and heard.refiner is not None
+    assert np.abs(coarse.generate(audio)[0].pose - heard.generate(audio)[0].pose).max() > 1e-5
+
+
+def test_memory_stays_constant_on_long_audio(stages: dict[str, Path]) -> None:
+    gen = ProbTalkGenerator({"model": str(stages["model"]), "window": 48, "context": 8})
+    tone = turn_taking_audio(2.0, seed=1)
+
+    def chunks(seconds: float):  # type: ignore[no-untyped-def]
+        for i in range(int(seconds / 2)):
+            yield AudioChunk(i * len(tone), tone[:, 0], tone[:, 1])
+
+    def peak(seconds: float) -> int:
+        tracemalloc.start()
+        for _ in gen.stream(chunks(seconds)):
+            pass
+        _, top = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        return top
+
+    short, long = peak(20), peak(120)
+    assert long < short * 1.3 + 200_000, (short, long)
+
+
+def test_bad_options_and_folders_are_one_line(stages: dict[str, Path], tmp_path: Path) -> None:
+    wav = str(REPO / "samples" / "dialogue.wav")
+    for option, text in (
+        ("speaker=nobody", "not one the model learned (calm, lively)"),
+        ("context=200", "context must be below window"),
+        ("iterations=0", "iterations"),
+        ("mode=batch", "mode"),
+    ):
+        out = run_cli("drive", wav, "--generator", "probtalk", "-G", f"model={stages['model']}", "-G", option,
+                      "--backend", "record", "--out", str(tmp_path / "o"))  # fmt: skip
+        assert out.returncode == 2 and text in out.stderr and len(out.stderr.splitlines()) == 1, out.stderr
+    vq_only = tmp_path / "vq_model"
+    assert run_cli("export", str(stages["vq"]), "--out", str(vq_only)).returncode == 0
+    out = run_cli("drive", wav, "--generator", "probtalk", "-G", f"model={vq_only}", "--backend", "record",
+                  "--out", str(tmp_path / "o"))  # fmt: skip
+    assert out.returncode == 2 and "'vq' stage export" in out.stderr and len(out.stderr.splitlines()) == 1
