@@ -207,6 +207,10 @@ class MotionDecoder(nn.Module):
 class ProductQuantizer(nn.Module):
     """G codebooks of K codes, each quantising its slice of the latent; EMA updates, dead-code reset.
 
+    Slices and codes live on the unit sphere (cosine distance, as in ViT-VQGAN): without it, the
+    commitment loss and the EMA shrink latents and codes together until a few codes serve every
+    latent.
+
     A code is dead when its running usage (EMA of how many latents chose it per step) falls below
     one; it is replaced by a random latent of the current batch, so no code stays unused. Under
     DDP the usage statistics are summed over processes and process 0's resets are broadcast, so
@@ -218,16 +222,16 @@ class ProductQuantizer(nn.Module):
         g, k, d = config.groups, config.codes, config.code_dim
         self.groups, self.codes, self.dim = g, k, d
         self.decay, self.eps = config.ema_decay, 1e-5
-        self.register_buffer("codebooks", torch.randn(g, k, d) * 0.01)
+        self.register_buffer("codebooks", F.normalize(torch.randn(g, k, d), dim=-1))
         self.register_buffer("usage", torch.zeros(g, k))
         self.register_buffer("sums", torch.zeros(g, k, d))
         self.updating = True
         """Update the codebooks in training mode (False once a later stage freezes the VQ)."""
 
     def split(self, latent: torch.Tensor) -> torch.Tensor:
-        """(B, G*d, T') -> (B, T', G, d)."""
+        """(B, G*d, T') -> (B, T', G, d) unit vectors."""
         b, _, t = latent.shape
-        return latent.transpose(1, 2).reshape(b, t, self.groups, self.dim)
+        return F.normalize(latent.transpose(1, 2).reshape(b, t, self.groups, self.dim), dim=-1)
 
     def nearest(self, z: torch.Tensor) -> torch.Tensor:
         """(B, T', G, d) latents -> (B, T', G) indices of the nearest code of each group's book."""
@@ -255,8 +259,9 @@ class ProductQuantizer(nn.Module):
             self._update(z.detach(), generator)
         codes = self.nearest(z.detach())
         q = self.lookup(codes)
-        commitment = F.mse_loss(latent, q.detach())
-        return latent + (q - latent).detach(), codes, commitment
+        unit = z.flatten(2).transpose(1, 2)  # (B, G*d, T'), each group's slice of unit length
+        commitment = F.mse_loss(unit, q.detach())
+        return unit + (q - unit).detach(), codes, commitment
 
     @torch.no_grad()
     def _update(self, z: torch.Tensor, generator: torch.Generator | None) -> None:
@@ -271,7 +276,7 @@ class ProductQuantizer(nn.Module):
         self.sums.mul_(self.decay).add_(sums, alpha=1 - self.decay)
         total = self.usage.sum(-1, keepdim=True)
         smoothed = (self.usage + self.eps) / (total + self.codes * self.eps) * total  # Laplace smoothing
-        self.codebooks.copy_(self.sums / smoothed.unsqueeze(-1))
+        self.codebooks.copy_(F.normalize(self.sums / smoothed.unsqueeze(-1), dim=-1))
         dead = self.usage < 1.0
         if dead.any():
             n = flat.shape[1]
