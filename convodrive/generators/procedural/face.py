@@ -59,7 +59,7 @@ def _tables() -> tuple[np.ndarray, np.ndarray]:
 VISEME_JAW, VISEME_SHAPES = _tables()
 _BLINK = [0.35, 0.85, 1.0, 0.8, 0.5, 0.25, 0.08]
 """Eyelid closure over seven frames: a fast close and a slower reopening (about 230 ms)."""
-BLINKS_PER_MINUTE = {"speaking": 21.0, "listening": 13.0, "silent": 14.0}
+BLINKS_PER_MINUTE = {"speaking": 21.0, "listening": 12.0, "silent": 14.0}
 """Spontaneous blinks: people blink more while talking (about 20-26 a minute) than while listening
 attentively (about 10-20, with the listener's blinks at the partner's pauses on top of these),
 and extra blinks mark the start of their own turn."""
@@ -187,8 +187,8 @@ class FaceSynth:
             if self_onset and u[j][0] < _TURN_BLINK:
                 self._turn_blink_at = k + 2 + int(4 * u[j][0] / _TURN_BLINK)
             # The listener's blink at a partner's pause comes early rather than on top: only once
-            # half the interval to the next spontaneous blink has passed.
-            early = asked_blink[j] > 0 and self._blink_phase >= 0.5 * self._blink_due
+            # 60 % of the interval to the next spontaneous blink has passed.
+            early = asked_blink[j] > 0 and self._blink_phase >= 0.6 * self._blink_due
             turn = k == self._turn_blink_at or (self_end and u[j][0] < _END_BLINK) or early
             if self._since_blink > 9 and (turn or self._blink_phase >= self._blink_due):
                 blinks[j] = 1.0

@@ -134,7 +134,7 @@ class ListenerSynth:
             waited = min(1.0, self._since_nod / 240.0)  # after 8 s without a nod, nod at the next pause
             chance = min(0.95, (0.2 + 0.25 * fall + 0.45 * waited) * self.nod_readiness)
             if r[0] < chance:
-                start = k + int(4 * r[1] * (0.5 + 0.5 * v))  # 0 to 130 ms after the pause begins
+                start = k + 2 + int(5 * r[1] * (0.5 + 0.5 * v))  # 70 to 230 ms after the pause begins
                 size = 0.7 + 0.3 * r[2]
                 kind = r[3]
                 if kind < self.slow_share:
