@@ -25,6 +25,9 @@ class Generator(abc.ABC):
     description: ClassVar[str] = ""
     Options: ClassVar[type[PluginOptions]] = PluginOptions
     """The dataclass of this generator's options (the base class: none)."""
+    live_options: ClassVar[Mapping[str, Any]] = {}
+    """Option values a live run uses unless the config or the command line sets them: what keeps
+    the latency low when a person waits for the robot's response."""
 
     def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
         self.options = coerce_options(self.Options, options, plugin=f"generator {self.name}")

@@ -90,7 +90,7 @@ def live(request: LiveRequest, on_start: Callable[[], None] | None = None) -> Dr
     if request.seconds is not None and request.seconds <= 0:
         raise UserError(f"--seconds must be positive, got {request.seconds:g}")
     config = load_run_config(request.config)
-    generator, gen_options = make_generator(request.generator, config, request.generator_options)
+    generator, gen_options = make_generator(request.generator, config, request.generator_options, live=True)
     planned = make_backends(request.backends, config, request.backend_options)
     run_in_own_processes(planned)  # a live run is paced: heavy and hardware backends must not shake it
     if request.partner == "none" and request.self_voice == "none" and request.seconds is None:

@@ -74,13 +74,16 @@ class DriveResult:
     outputs: list[Path]
 
 
-def make_generator(name: str, config: RunConfig, options: dict[str, Any]) -> tuple[Generator, PluginOptions]:
-    """The named generator with its options merged (the config's, then the caller's); a bad name
-    or option is a ``UserError``."""
+def make_generator(
+    name: str, config: RunConfig, options: dict[str, Any], live: bool = False
+) -> tuple[Generator, PluginOptions]:
+    """The named generator with its options merged (a live run's defaults when ``live``, the
+    config's, then the caller's); a bad name or option is a ``UserError``."""
     gen_cls: type[Generator] = load_plugin(GENERATOR_GROUP, name)
-    merged = merge_options(
-        gen_cls.Options, [(config.where, config.generator_options(name)), ("", options)], plugin=f"generator {name}"
-    )
+    layers = [(config.where, config.generator_options(name)), ("", options)]
+    if live:
+        layers.insert(0, ("", dict(gen_cls.live_options)))
+    merged = merge_options(gen_cls.Options, layers, plugin=f"generator {name}")
     return gen_cls(merged), merged
 
 

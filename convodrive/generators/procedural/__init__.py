@@ -43,6 +43,7 @@ class ProceduralGenerator(Generator):
 
     Options = ProceduralOptions
     options: ProceduralOptions
+    live_options = {"anticipation": 0.0}  # a live partner waits 100 ms for the motion, not 400
 
     @property
     def anticipation_frames(self) -> int:
