@@ -6,8 +6,10 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 from convodrive.audio.source import AudioSource, ChannelMap
+from convodrive.cli.options import scoped_key_value
 from convodrive.eval.behaviour import behaviour_figures
 from convodrive.eval.segments import load_segments
 from convodrive.motion.npz import load_clip
@@ -51,7 +53,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     c.add_argument("--corpus", required=True, type=Path, help="corpus folder")
     c.add_argument("--split", default="test", choices=("train", "val", "test"), help="which split to score on")
     c.add_argument(
-        "--generators", required=True, help="comma-separated methods, e.g. ground-truth,procedural,knn,random"
+        "--generators",
+        required=True,
+        help="comma-separated methods, e.g. ground-truth,procedural,knn,random; LABEL=GENERATOR scores a generator "
+        "under a label of its own (e.g. probtalk-T1=probtalk), so one generator can run with several settings",
+    )
+    c.add_argument(
+        "-G",
+        "--generator-option",
+        type=scoped_key_value("METHOD", "probtalk-T1.iterations=1"),
+        action="append",
+        default=[],
+        metavar="METHOD.KEY=VALUE",
+        help="option of one compared generator (by its name or label), repeatable",
     )
     c.add_argument("--out", required=True, type=Path, help="folder for compare.md, compare.json, compare.png")
     c.add_argument("--samples", type=int, default=4, help="samples per conversation (Div_sample, Var)")
@@ -66,6 +80,9 @@ def run_compare(args: argparse.Namespace) -> int:
     from convodrive.pipeline.compare import CompareRequest, compare
 
     names = tuple(n.strip() for n in args.generators.split(",") if n.strip())
+    options: dict[str, dict[str, Any]] = {}
+    for method, key, value in args.generator_option:
+        options.setdefault(method, {})[key] = value
     result = compare(
         CompareRequest(
             corpus=args.corpus,
@@ -76,6 +93,7 @@ def run_compare(args: argparse.Namespace) -> int:
             seed=args.seed,
             max_conversations=args.max_conversations,
             fgd_model=args.fgd_model,
+            generator_options=options,
         ),
         on_method=lambda name: print(f"scoring {name} ...", file=sys.stderr, flush=True),
     )

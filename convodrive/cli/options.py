@@ -66,15 +66,20 @@ def key_value(text: str) -> tuple[str, Any]:
     return key.strip(), parse_scalar(raw)
 
 
-def backend_key_value(text: str) -> tuple[str, str, Any]:
-    """``BACKEND.KEY=VALUE``, e.g. ``render.camera=face``."""
-    key, value = key_value(text)
-    backend, dot, option = key.partition(".")
-    if not dot or not backend or not option:
-        raise argparse.ArgumentTypeError(
-            f"expected BACKEND.KEY=VALUE (e.g. render.camera=face), got {clip_value(text)}"
-        )
-    return backend, option, value
+def scoped_key_value(scope: str, example: str) -> Callable[[str], tuple[str, str, Any]]:
+    """An argparse type: ``SCOPE.KEY=VALUE`` (e.g. a backend's or a compared method's option)."""
+
+    def parse(text: str) -> tuple[str, str, Any]:
+        key, value = key_value(text)
+        name, dot, option = key.partition(".")
+        if not dot or not name or not option:
+            raise argparse.ArgumentTypeError(f"expected {scope}.KEY=VALUE (e.g. {example}), got {clip_value(text)}")
+        return name, option, value
+
+    return parse
+
+
+backend_key_value = scoped_key_value("BACKEND", "render.camera=face")
 
 
 def add_motion_options(p: argparse.ArgumentParser) -> None:

@@ -54,16 +54,33 @@ class CompareResult:
     seconds: dict[str, float]
 
 
-def _check_names(names: tuple[str, ...]) -> None:
-    if not names:
+def method_plugin(method: str) -> tuple[str, str]:
+    """``LABEL=GENERATOR`` -> (label, generator); a bare name is its own label."""
+    label, sep, plugin = (part.strip() for part in method.partition("="))
+    return (label, plugin) if sep else (label, label)
+
+
+def _check_names(request: CompareRequest) -> None:
+    if not request.generators:
         raise UserError("--generators needs at least one name (e.g. ground-truth,procedural,knn,random)")
-    for name in names:
-        if name not in BASELINES:
-            load_plugin(GENERATOR_GROUP, name)  # unknown or unloadable: one line, before any work
+    labels = [method_plugin(m)[0] for m in request.generators]
+    for method in request.generators:
+        label, plugin = method_plugin(method)
+        if not label or not plugin:
+            raise UserError(f"--generators: '{method}' is not NAME or LABEL=GENERATOR")
+        if labels.count(label) > 1:
+            raise UserError(f"--generators: '{label}' is named twice (give one a label: LABEL={plugin})")
+        if plugin in BASELINES and label != plugin:
+            raise UserError(f"--generators: '{method}': baselines take no label")
+        if plugin not in BASELINES:
+            load_plugin(GENERATOR_GROUP, plugin)  # unknown or unloadable: one line, before any work
+    for label in request.generator_options:
+        if label not in labels or label in BASELINES:
+            raise UserError(f"-G {label}.KEY=VALUE: '{label}' is not a generator in --generators")
 
 
 def compare(request: CompareRequest, on_method: Callable[[str], None] | None = None) -> CompareResult:
-    _check_names(request.generators)
+    _check_names(request)
     if request.samples < 1:
         raise UserError(f"--samples must be at least 1, got {request.samples}")
     corpus = Corpus.open(request.corpus)
@@ -80,7 +97,8 @@ def compare(request: CompareRequest, on_method: Callable[[str], None] | None = N
     knn: KNNIndex | None = None
     results: dict[str, dict[str, Any]] = {}
     seconds: dict[str, float] = {}
-    for name in request.generators:
+    for method in request.generators:
+        name, plugin = method_plugin(method)
         if on_method is not None:
             on_method(name)
         started = time.monotonic()
@@ -97,10 +115,10 @@ def compare(request: CompareRequest, on_method: Callable[[str], None] | None = N
                 knn = knn or KNNIndex(corpus)
                 samples = knn.motion(conv, request.samples)
             else:
-                options = {**conversation_options(name, corpus, conv), **request.generator_options.get(name, {})}
+                options = {**conversation_options(plugin, corpus, conv), **request.generator_options.get(name, {})}
                 key = json.dumps(options, sort_keys=True, default=str)
                 if key not in generators:
-                    generators[key] = load_plugin(GENERATOR_GROUP, name)(options)
+                    generators[key] = load_plugin(GENERATOR_GROUP, plugin)(options)
                 samples = generators[key].generate(audio[conv.id], seed=request.seed, num_samples=request.samples)
                 samples = [_fit(s, conv.frames) for s in samples]
             if samples is not None:

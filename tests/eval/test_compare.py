@@ -71,3 +71,54 @@ def test_the_teacher_generator_is_scored_with_each_speakers_style(tiny_corpus: P
     corpus = Corpus.open(tiny_corpus)
     styles = {conv.speaker: conversation_options("procedural", corpus, conv) for conv in corpus.conversations}
     assert styles == {"calm": {"expressiveness": 0.6}, "lively": {"expressiveness": 1.4}}
+
+
+def test_one_generator_scored_under_two_labels_with_options_of_its_own(
+    tiny_corpus: Path, fgd_model: Path, tmp_path: Path
+) -> None:
+    out = run_cli(
+        "eval",
+        "compare",
+        "--corpus",
+        str(tiny_corpus),
+        "--generators",
+        "procedural,still=procedural",
+        "-G",
+        "still.expressiveness=0.0",
+        "-G",
+        "still.gestures=false",
+        "--samples",
+        "1",
+        "--max-conversations",
+        "1",
+        "--fgd-model",
+        str(fgd_model),
+        "--out",
+        str(tmp_path / "cmp"),
+    )
+    assert out.returncode == 0, out.stderr
+    results = json.loads((tmp_path / "cmp" / "compare.json").read_text())["results"]
+    assert list(results) == ["procedural", "still"]
+    # The label's options reached its generator: without expressiveness its motion is further from the teacher's.
+    assert results["still"]["FD_g body"] > results["procedural"]["FD_g body"]
+
+
+@pytest.mark.parametrize(
+    ("methods", "options", "message"),
+    [
+        ("procedural,procedural", [], "'procedural' is named twice"),
+        ("procedural,gt=ground-truth", [], "baselines take no label"),
+        ("procedural,x=nosuch", [], "unknown generator 'nosuch'"),
+        ("procedural,knn", ["-G", "knn.k=3"], "'knn' is not a generator in --generators"),
+        ("procedural", ["-G", "other.expressiveness=1"], "'other' is not a generator in --generators"),
+        ("procedural", ["-G", "expressiveness=1"], "expected METHOD.KEY=VALUE"),
+    ],
+)
+def test_labels_and_method_options_mistakes_are_one_line(
+    tiny_corpus: Path, tmp_path: Path, methods: str, options: list[str], message: str
+) -> None:
+    out = run_cli(
+        "eval", "compare", "--corpus", str(tiny_corpus), "--generators", methods, *options, "--out", str(tmp_path / "c")
+    )
+    assert out.returncode == 2 and message in out.stderr and len(out.stderr.splitlines()) == 1, out.stderr
+    assert not (tmp_path / "c").exists()

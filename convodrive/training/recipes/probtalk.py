@@ -36,21 +36,24 @@ from convodrive.training.recipe import Batch, DataSpec, GraphSpec, Recipe, Start
 from convodrive.training.windows import CorpusWindows
 
 _SMALL = {
-    "code_dim": 64,
-    "vq_channels": [128, 128, 256, 256],
+    "code_dim": 32,
+    "vq_channels": [64, 64, 128, 128],
     "vq_layers": 1,
-    "context_channels": [64, 64, 128, 128],
-    "audio_channels": 128,
-    "width": 256,
+    "context_channels": [32, 32, 64, 64],
+    "audio_channels": 64,
+    "width": 128,
     "heads": 4,
-    "layers": 4,
-    "feedforward": 768,
-    "refiner_width": 192,
+    "layers": 2,
+    "feedforward": 384,
+    "refiner_width": 96,
     "refiner_heads": 4,
-    "refiner_layers": 3,
-    "refiner_feedforward": 576,
-    "speaker_dim": 64,
+    "refiner_layers": 2,
+    "refiner_feedforward": 288,
+    "speaker_dim": 32,
+    "dropout": 0.0,
 }
+"""The shipped model: sized so that scripts/train_probtalk.sh trains it on a shared 2-core machine
+within the hour (about 0.2 to 0.4 CPU-seconds a step at batch 16, one thread)."""
 _TINY = {
     "codes": 16,
     "code_dim": 8,
@@ -90,9 +93,17 @@ class ProbTalkRecipe(Recipe):
             {"batch_size": 128, "lr": 1e-4, "steps": 20000, "warmup_steps": 500, "decay_steps": 19500},
         ),
         "small": Preset(
-            "the shipped model: 256-d predictor (4 layers), 192-d refiner (3 layers), PQ-VAE 128-256 channels",
+            "the shipped model: 128-d predictor (2 layers), 96-d refiner (2 layers), PQ-VAE 64-128 channels",
             _SMALL,
-            {"batch_size": 32, "lr": 5e-4, "steps": 3000, "warmup_steps": 100, "decay_steps": 2900, "val_every": 500},
+            {
+                "batch_size": 16,
+                "lr": 1e-3,
+                "steps": 600,
+                "warmup_steps": 20,
+                "decay_steps": 580,
+                "val_every": 1000,
+                "checkpoint_every": 100,
+            },
         ),
         "tiny": Preset(
             "for tests: a few units, 48-frame windows",
