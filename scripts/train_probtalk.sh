@@ -29,9 +29,9 @@ train() {
     "$bin/convodrive" train probtalk --corpus "$corpus" --preset small --seed 0 --threads "$threads" \
         --stage "$stage" --steps "$steps" --set "decay_steps=$((steps - 20))" --out "$runs/$stage" "$@"
 }
-train vq 400
-train predictor 600 --init "$runs/vq"
-train refiner 300 --init "$runs/predictor"
+train vq 800
+train predictor 1200 --init "$runs/vq"
+train refiner 500 --init "$runs/predictor"
 trained=$(date +%s)
 
 rm -rf "$runs/fp32" "$runs/int8"
