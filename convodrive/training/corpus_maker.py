@@ -115,12 +115,16 @@ def make_conversation(plan: ConversationPlan, takes: int) -> Prepared:
     dialogue = synthesize((plan.self_voice, plan.partner_voice), plan.seconds, rng, TurnTaking())
     audio = quantise(dialogue.audio)  # the teacher hears the 16-bit audio the corpus stores
     english = plan.language.startswith("en")
-    generator = ProceduralGenerator({**plan.speaker.style, "phones": english})
-    clips = generator.generate(DyadicAudio(audio[:, 0], audio[:, 1]), seed=plan.seed, num_samples=takes)
+    # The teacher's options in full (its phone decoder only knows English), so that eval compare
+    # can score the teacher as it taught.
+    style = {**plan.speaker.style, "phones": english}
+    clips = ProceduralGenerator(style).generate(
+        DyadicAudio(audio[:, 0], audio[:, 1]), seed=plan.seed, num_samples=takes
+    )
     metadata = {
         "language": plan.language,
         "voices": {"self": plan.self_voice.to_json(), "partner": plan.partner_voice.to_json()},
-        "style": plan.speaker.style,
+        "style": style,
         "take_seeds": [int(c.metadata["seed"]) for c in clips],
         **dialogue.summary(),
     }

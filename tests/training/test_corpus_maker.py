@@ -102,7 +102,8 @@ def test_make_is_deterministic_whatever_the_jobs(tmp_path: Path) -> None:
         # Takes differ: the one-to-many structure the models learn.
         assert np.abs(takes_a[0].pose - takes_a[1].pose).max() > 0.01
         assert conv.speaker in {s.label for s in SPEAKERS}
-        assert conv.metadata["style"] == next(s.style for s in SPEAKERS if s.label == conv.speaker)
+        style = next(s.style for s in SPEAKERS if s.label == conv.speaker)
+        assert conv.metadata["style"] == {**style, "phones": conv.metadata["language"].startswith("en")}
         assert {"language", "voices", "speech", "take_seeds"} <= set(conv.metadata)
     assert list(ca.check()) == ca.conversations
     manifest = json.loads((tmp_path / "a" / "manifest.json").read_text())
@@ -130,3 +131,22 @@ def test_make_refuses_a_folder_in_use_and_touches_nothing(tmp_path: Path) -> Non
     result = run_cli("corpus", "make", "--hours", "0.01", "--out", str(tmp_path))
     assert result.returncode == 2 and "not an empty folder" in result.stderr
     assert [p.name for p in tmp_path.iterdir()] == ["mine.txt"]
+
+
+def test_the_recorded_style_and_seed_remake_the_teachers_take(tmp_path: Path) -> None:
+    """eval compare scores the teacher with the options the corpus recorded: they must be all of them."""
+    import soundfile
+
+    from convodrive.audio.source import DyadicAudio
+
+    make_corpus(0.006, tmp_path / "c", seed=1, jobs=1)  # one Italian conversation: no phone decoder
+    corpus = Corpus.open(tmp_path / "c")
+    conv = corpus.conversations[0]
+    assert conv.metadata["language"] == "it" and conv.metadata["style"]["phones"] is False
+    audio, _ = soundfile.read(tmp_path / "c" / conv.audio, dtype="float32")
+    again = ProceduralGenerator(conv.metadata["style"]).generate(
+        DyadicAudio(audio[:, 0], audio[:, 1]), seed=conv.metadata["take_seeds"][0]
+    )[0]
+    stored = corpus.takes(conv.id)[0]
+    np.testing.assert_allclose(again.face, stored.face, atol=2e-3)
+    np.testing.assert_allclose(again.pose, stored.pose, atol=2e-3)
