@@ -14,8 +14,10 @@ through the real SDK with the ``procedural`` generator.
   first minute to the last in frames (30 fps). ``sync_error_ms`` leaves out the generator's own
   offset (what it does on purpose).
 - Targets: offset within ±33 ms, drift 0 frames over 10 minutes, partner latency <= 150 ms p99.
+  The partner's latency is at least the generator's look-ahead: ``procedural`` declares 100 ms
+  plus its ``anticipation`` (0.3 s by default; ``-G anticipation=0`` is its live setting).
 
-Run: ``.venv/bin/python -m bench.bench_live [--seconds 600]``
+Run: ``.venv/bin/python -m bench.bench_live [--seconds 600] [-G anticipation=0]``
 """
 
 from __future__ import annotations
@@ -71,7 +73,7 @@ def minute_offsets(run_dir: Path) -> dict[str, float | None]:
     }
 
 
-def run(seconds: float) -> dict[str, object]:
+def run(seconds: float, generator_options: list[str]) -> dict[str, object]:
     root = Path(tempfile.mkdtemp(prefix="bench_live_"))
     load_before = os.getloadavg()
     rig = PulseRig(root / "pulse")
@@ -91,7 +93,7 @@ def run(seconds: float) -> dict[str, object]:
         live = subprocess.Popen(
             [sys.executable, "-m", "convodrive.cli.main", "live", "--self", str(self_wav), "--partner", MIC,
              "--play", SPEAKER, "--monitor", MONITOR, "--seconds", str(seconds), "--backend", "dynamixel",
-             "-B", f"dynamixel.port={port}", "--out", str(out)],
+             "-B", f"dynamixel.port={port}", "--out", str(out), *[a for g in generator_options for a in ("-G", g)]],
             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
         assert live.stderr is not None
@@ -117,6 +119,7 @@ def run(seconds: float) -> dict[str, object]:
     dxl = report["backends"]["dynamixel"]
     return {
         "seconds": seconds,
+        "generator": report["generator"],
         "frames": report["frames"],
         "partner_latency_ms": latency,
         "partner_delay_ms": info["latency_ms"]["partner_delay"],
@@ -146,9 +149,13 @@ def run(seconds: float) -> dict[str, object]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=600.0, help="length of the conversation (default 600)")
+    parser.add_argument(
+        "-G", dest="generator_options", action="append", default=[], metavar="KEY=VALUE",
+        help="a procedural option, e.g. -G anticipation=0 (its live setting: the look-ahead back to 100 ms)",
+    )  # fmt: skip
     args = parser.parse_args()
     started = time.time()
-    result = run(args.seconds)
+    result = run(args.seconds, args.generator_options)
     result["bench_wall_s"] = round(time.time() - started, 1)
     print(json.dumps(result, indent=2))
 

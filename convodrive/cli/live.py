@@ -56,8 +56,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=_latency,
         default=0.1,
         metavar="low|high|SECONDS",
-        help="output latency asked of the audio device; the clock allows for it, so more costs no sync, "
-        "only robustness against a busy CPU when less (default: 0.1)",
+        help="output latency asked of the audio device (default: 0.1 s); the clock allows for any "
+        "latency, so a larger one costs no sync and rides out a busy CPU",
     )
     p.add_argument("--list-devices", action="store_true", help="print the audio devices and exit")
     add_motion_options(p)

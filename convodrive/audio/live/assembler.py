@@ -15,9 +15,12 @@ partner's latest block. Partner audio that has not arrived ``grace`` seconds aft
 
 How late audio arrives depends on the device and the load: an audio server may hold a
 microphone's blocks for tens of milliseconds, or 200 ms for an idle monitor. So ``grace`` (and
-with it the partner delay) rises at once to cover the 90th percentile of recent arrival ages, once
-past the start-up second where servers deliver erratically, and falls back 5 ms at a time when
-the last ``DECAY_SECONDS`` needed less; each change moves the partner's time line (a resync).
+with it the partner delay) follows the arrival ages: it rises to cover the latest block of a
+typical second among the last ``AGE_SECONDS`` (the median of each second's oldest block), so a
+device that is always late moves it and a single stall of the whole process (which makes every
+frame late anyway) does not; it falls back 5 ms at a time when ``DECAY_SECONDS`` in a row needed
+10 ms less. The input's first second, where servers deliver erratically, is not counted. Each
+change moves the partner's time line (a resync).
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ RESYNC_SECONDS = 0.01
 POLL_SECONDS = 0.002
 SETTLE_SECONDS = 1.0
 """Arrival ages in the input's first second do not move the partner delay (start-up bursts)."""
-AGE_WINDOW = 200
+AGE_SECONDS = 10
 GRACE_MARGIN = 0.005
 MAX_GRACE = 1.0
 DECAY_SECONDS = 10.0
@@ -73,7 +76,9 @@ class LiveAudio:
         self.grace = grace
         self.initial_delay = partner_delay
         self.base_grace = grace
-        self._ages: collections.deque[float] = collections.deque(maxlen=AGE_WINDOW)
+        self._worst: collections.deque[float] = collections.deque(maxlen=AGE_SECONDS)
+        """The oldest block's age in each of the last seconds."""
+        self._second = -1
         self._first_block: float | None = None
         self._changed = 0.0
         self.stop_at = None if stop_at is None else int(round(stop_at * ANALYSIS_RATE))
@@ -154,13 +159,18 @@ class LiveAudio:
             self._first_block = now
         if now - self._first_block < SETTLE_SECONDS:
             return
-        self._ages.append(age)
-        if len(self._ages) < AGE_WINDOW // 5:
+        second = int(now - self._first_block)
+        if second != self._second:
+            self._second = second
+            self._worst.append(age)
+        else:
+            self._worst[-1] = max(self._worst[-1], age)
+        if len(self._worst) < 3:
             return
-        needed = min(float(np.percentile(self._ages, 90)) + GRACE_MARGIN, MAX_GRACE)
+        needed = min(float(np.median(self._worst)) + GRACE_MARGIN, MAX_GRACE)
         if needed > self.grace:
             self._set_grace(self.grace + math.ceil((needed - self.grace) / STEP) * STEP, needed, now)
-        elif now - self._changed > DECAY_SECONDS and self.grace - STEP >= max(needed, self.base_grace) - 1e-9:
+        elif now - self._changed > DECAY_SECONDS and self.grace - STEP >= max(needed + STEP, self.base_grace) - 1e-9:
             self._set_grace(self.grace - STEP, needed, now)
 
     def _set_grace(self, grace: float, needed: float, now: float) -> None:
