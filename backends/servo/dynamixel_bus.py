@@ -208,7 +208,12 @@ class DynamixelBus:
                 if attempt:
                     health.retries += 1
                     time.sleep(0.001 * 2 ** (attempt - 1))
-                value, result, error = self._guard(call, self._port())
+                try:
+                    value, result, error = self._guard(call, self._port())
+                except IndexError:
+                    # A late reply to an earlier request of this servo, shorter than the one asked
+                    # for (the SDK indexes past it): corrupt; the retry's port flush drops it.
+                    value, result, error = None, sdk.COMM_RX_CORRUPT, 0
                 if result == sdk.COMM_SUCCESS:
                     self._seen(health, error)
                     if error & 0x7F:

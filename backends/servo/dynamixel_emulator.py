@@ -203,6 +203,7 @@ class DynamixelEmulator(PtyDevice):
         self._rng = random.Random(seed)
         self._drop: dict[int | None, int] = {}
         self._corrupt: dict[int | None, int] = {}
+        self._late: dict[int | None, list[float]] = {}
         self.drop_rate = 0.0
         self.corrupt_rate = 0.0
         self._server = PtyServer(self._on_bytes, link=link, name="dynamixel-emulator")
@@ -226,6 +227,12 @@ class DynamixelEmulator(PtyDevice):
     def corrupt_replies(self, count: int = 1, servo_id: int | None = None) -> None:
         with self._lock:
             self._corrupt[servo_id] = self._corrupt.get(servo_id, 0) + count
+
+    def delay_replies(self, seconds: float, count: int = 1, servo_id: int | None = None) -> None:
+        """Hold the next ``count`` replies ``seconds`` longer: the host times out and the late
+        reply arrives while it waits for the answer to its next request (a stale reply)."""
+        with self._lock:
+            self._late.setdefault(servo_id, []).extend([seconds] * count)
 
     def hardware_error(self, servo_id: int, fault: str) -> None:
         with self._lock:
@@ -282,10 +289,12 @@ class DynamixelEmulator(PtyDevice):
                 request_bytes += 10 + len(packet.params)
                 replies.extend(self._handle(packet))
             self._torque_changed("commanded")
-            out = [(self._delay_us(sid), self._mangle(sid, raw)) for sid, raw in replies]
+            out = [(self._delay_us(sid) * 1e-6 + self._lateness(sid), self._mangle(sid, raw)) for sid, raw in replies]
         due = arrived + self._wire_s(request_bytes)
-        for delay_us, raw in out:
-            due += delay_us * 1e-6  # Return_Delay_Time: the servo waits before it answers
+        for delay, raw in out:
+            due += delay  # Return_Delay_Time (and an injected lateness): the servo waits before it answers
+            if delay > 0.001:
+                time.sleep(max(0.0, due - time.perf_counter()))
             if raw is None:
                 continue
             due += self._wire_s(len(raw))
@@ -305,6 +314,12 @@ class DynamixelEmulator(PtyDevice):
     def _delay_us(self, servo_id: int) -> float:
         servo = self.servos.get(servo_id)
         return 2.0 * servo.get("Return_Delay_Time") if servo is not None else 0.0
+
+    def _lateness(self, servo_id: int) -> float:
+        for key in (servo_id, None):
+            if self._late.get(key):
+                return self._late[key].pop(0)
+        return 0.0
 
     def _wire_s(self, nbytes: int) -> float:
         """Time ``nbytes`` take on the emulated wire (10 bits per byte; 0 if not emulated)."""

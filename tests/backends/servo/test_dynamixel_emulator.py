@@ -112,6 +112,28 @@ def test_faults_drop_corrupt_vanish_unplug(bus) -> None:
             port.is_using = False
 
 
+def test_a_late_reply_is_not_taken_for_the_next_answer() -> None:
+    """A busy machine delays a reply past the bus's timeout; it then arrives while the bus waits
+    for its next request's answer. Shorter than that answer, it made the SDK raise IndexError,
+    which failed the whole backend at open; the bus counts it corrupt and asks again."""
+    from convodrive.backends.servo.dynamixel_bus import DynamixelBus, Motor
+    from convodrive.backends.servo.dynamixel_table import model
+
+    with DynamixelEmulator([1], "xl330") as emu:
+        # Timeouts of 2 * 25 + 2 ms: the first read gives up at ~52 ms, its reply comes at ~80 ms,
+        # in the middle of the second read's wait.
+        bus = DynamixelBus(emu.port, [Motor("jaw", 1, model("xl330"))], latency_ms=25.0, retries=0)
+        bus.connect()
+        try:
+            emu.delay_replies(0.08, servo_id=1)
+            assert bus.read("Firmware_Version", "jaw") is None
+            bus.retries = 1
+            assert bus.read("Present_Position", "jaw") == 2048  # asked again after the stale reply
+            assert bus.health["jaw"].corrupt == 1 and bus.health["jaw"].timeouts == 1
+        finally:
+            bus.disconnect()
+
+
 def test_fault_specs_parse() -> None:
     f = parse_fault("vanish:4@1.5+2")
     assert (f.kind, f.arg, f.at, f.duration) == ("vanish", 4.0, 1.5, 2.0)
