@@ -130,7 +130,7 @@ function draw(now) {
     document.body.dataset.frame = String(shown);
   }
   if (now - since > 1000) {
-    rate = frames - (draw.last || 0);
+    rate = Math.round((frames - (draw.last || 0)) * 1000 / (now - since));
     draw.last = frames;
     since = now;
     if (latest) status.textContent =
