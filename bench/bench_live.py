@@ -15,9 +15,9 @@ through the real SDK with the ``procedural`` generator.
   offset (what it does on purpose).
 - Targets: offset within ±33 ms, drift 0 frames over 10 minutes, partner latency <= 150 ms p99.
   The partner's latency is at least the generator's look-ahead: ``procedural`` declares 100 ms
-  plus its ``anticipation`` (0.3 s by default; ``-G anticipation=0`` is its live setting).
+  plus its ``anticipation`` (``convodrive live`` makes it 0 unless ``-G`` says otherwise).
 
-Run: ``.venv/bin/python -m bench.bench_live [--seconds 600] [-G anticipation=0]``
+Run: ``.venv/bin/python -m bench.bench_live [--seconds 600] [-G anticipation=0.3]``
 """
 
 from __future__ import annotations
@@ -151,7 +151,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=600.0, help="length of the conversation (default 600)")
     parser.add_argument(
         "-G", dest="generator_options", action="append", default=[], metavar="KEY=VALUE",
-        help="a procedural option, e.g. -G anticipation=0 (its live setting: the look-ahead back to 100 ms)",
+        help="a procedural option, e.g. -G anticipation=0.3 (live runs use 0: a 100 ms look-ahead)",
     )  # fmt: skip
     args = parser.parse_args()
     started = time.time()
