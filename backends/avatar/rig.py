@@ -11,9 +11,12 @@ form is what makes an exported mannequin render exactly like the built-in one.
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
 
 
 @dataclasses.dataclass(frozen=True)
@@ -124,6 +127,14 @@ def decompose(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return m[:3, 3].copy(), rot, scale
 
 
+def csr(values: np.ndarray, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]) -> sp.csr_matrix:
+    """A sparse matrix from (value, row, column) triples. scipy.sparse is imported here, when a rig
+    is built, so that loading the render backend (``convodrive plugins``) does not wait for it."""
+    import scipy.sparse
+
+    return scipy.sparse.csr_matrix((values, (rows, cols)), shape=shape)
+
+
 def sparse_weights(dense: np.ndarray, influences: int = 4) -> sp.csr_matrix:
     """Keep the ``influences`` largest weights per vertex, renormalised to sum to one."""
     keep = np.argsort(-dense, axis=1)[:, :influences]
@@ -131,6 +142,6 @@ def sparse_weights(dense: np.ndarray, influences: int = 4) -> sp.csr_matrix:
     vals = np.take_along_axis(dense, keep, 1)
     total = vals.sum(1, keepdims=True)
     vals = vals / np.where(total > 0, total, 1.0)
-    m = sp.csr_matrix((vals.ravel(), (rows, keep.ravel())), shape=dense.shape)
+    m = csr(vals.ravel(), rows, keep.ravel(), dense.shape)
     m.eliminate_zeros()
     return m

@@ -12,16 +12,20 @@ vertices.
 
 from __future__ import annotations
 
-import numpy as np
-import scipy.sparse as sp
+from typing import TYPE_CHECKING
 
-from convodrive.backends.avatar.rig import Rig, Skeleton, trs_matrix
+import numpy as np
+
+from convodrive.backends.avatar.rig import Rig, Skeleton, csr, trs_matrix
 from convodrive.motion.channels import BLENDSHAPE_INDEX, JAW_OPEN_RAD
 from convodrive.motion.channels import EYE_LOOK_PITCH_RAD as GAZE_PITCH  # the joint-channel tie
 from convodrive.motion.channels import EYE_LOOK_YAW_RAD as GAZE_YAW
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.rotations import axis_angle_to_matrix, euler_to_matrix
 from convodrive.motion.skeleton import JOINT_INDEX, REST_POSITIONS, forward_kinematics
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
 
 _JAW = JOINT_INDEX["jaw"]
 _EYES = (JOINT_INDEX["left_eye_smplhf"], JOINT_INDEX["right_eye_smplhf"])
@@ -212,7 +216,7 @@ def vertex_normals(verts: np.ndarray, faces: np.ndarray, vertex_faces: sp.csr_ma
 def incidence(num_vertices: int, faces: np.ndarray) -> sp.csr_matrix:
     """(V, F) 1 where a vertex is a corner of a face."""
     f = len(faces)
-    return sp.csr_matrix((np.ones(3 * f), (faces.ravel(), np.repeat(np.arange(f), 3))), shape=(num_vertices, f))
+    return csr(np.ones(3 * f), faces.ravel(), np.repeat(np.arange(f), 3), (num_vertices, f))
 
 
 def welded_incidence(points: np.ndarray, normals: np.ndarray | None, faces: np.ndarray) -> sp.csr_matrix:
@@ -224,7 +228,7 @@ def welded_incidence(points: np.ndarray, normals: np.ndarray | None, faces: np.n
     group = weld_groups(points, normals)
     if group is None:
         return plain
-    weld = sp.csr_matrix((np.ones(v), (np.arange(v), group)), shape=(v, v))
+    weld = csr(np.ones(v), np.arange(v), group, (v, v))
     return weld @ (weld.T @ plain)
 
 

@@ -14,7 +14,6 @@ import math
 from fractions import Fraction
 
 import numpy as np
-from scipy.signal import resample_poly
 
 
 class StreamResampler:
@@ -70,6 +69,8 @@ class StreamResampler:
         return self._shape(out, flat)
 
     def _middle(self, window: np.ndarray, count: int) -> np.ndarray:
+        from scipy.signal import resample_poly  # here, not at load: scipy.signal takes seconds to import
+
         first = self.context * self.up // self.down
         out = resample_poly(window, self.up, self.down, axis=0).astype(np.float32)[first : first + count]
         self._emitted += len(out)

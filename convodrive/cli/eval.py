@@ -10,7 +10,6 @@ from typing import Any
 
 from convodrive.audio.source import AudioSource, ChannelMap
 from convodrive.cli.options import scoped_key_value
-from convodrive.eval.behaviour import behaviour_figures
 from convodrive.eval.segments import load_segments
 from convodrive.motion.npz import load_clip
 from convodrive.plumbing.errors import UserError
@@ -103,6 +102,8 @@ def run_compare(args: argparse.Namespace) -> int:
 
 
 def run_behaviour(args: argparse.Namespace) -> int:
+    from convodrive.eval.behaviour import behaviour_figures
+
     try:
         channels = ChannelMap.parse(args.channels) if args.channels else None
     except ValueError as exc:
