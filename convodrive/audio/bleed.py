@@ -15,9 +15,17 @@ row by row in a batch-independent order, so streaming in any chunk size gives th
 from __future__ import annotations
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
-from convodrive.audio.features import ACTIVE_DB, FFT_SIZE, WINDOW, frame_centre, row_sum, rows_irfft, rows_rfft
+from convodrive.audio.features import (
+    ACTIVE_DB,
+    FFT_SIZE,
+    WINDOW,
+    frame_centre,
+    row_sum,
+    rows_irfft,
+    rows_rfft,
+    windows,
+)
 
 MAX_LAG = 160
 """Largest delay between the microphones considered, samples at 16 kHz (10 ms: 3.4 m of air)."""
@@ -50,8 +58,8 @@ def bleed_frames(
         return bleed_self, bleed_other
     centres = frame_centre(np.arange(first, first + count)[rows]) - pad_start
     starts = centres - WINDOW // 2
-    a = _emphasised(sliding_window_view(padded_self, WINDOW)[starts])
-    b = _emphasised(sliding_window_view(padded_other, WINDOW)[starts])
+    a = _emphasised(windows(padded_self, starts, WINDOW))
+    b = _emphasised(windows(padded_other, starts, WINDOW))
     size = FFT_SIZE[a.shape[1] + MAX_LAG]
     spec_a, spec_b = rows_rfft(a, size), rows_rfft(b, size)
     xc = rows_irfft(spec_a * np.conj(spec_b), size)

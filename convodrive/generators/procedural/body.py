@@ -125,16 +125,17 @@ class BodySynth:
 
         pose = np.broadcast_to(self.rest, (n, NUM_JOINTS, 3)).copy()
         # Neck takes 40 % and head 60 % of the head's motion (intrinsic yaw, pitch, roll).
-        pose[:, J["neck"]] = yxz_axis_angle(0.4 * head)
-        pose[:, J["head"]] = yxz_axis_angle(0.6 * head)
-
         # Posture: the weight on one hip (pelvis roll, the spine bending back over it), a lean,
         # a bend and a turn at the lower back; the in-breath before a turn leans in.
         rad = np.radians
-        pose[:, J["pelvis"], 2] = rad(body[:, 3])
-        pose[:, J["spine1"]] = yxz_axis_angle(
-            rad(np.stack([body[:, 2], body[:, 0] + 0.5 * listen + 1.8 * inhale, body[:, 1] - 0.6 * body[:, 3]], axis=1))
+        lower_back = rad(
+            np.stack([body[:, 2], body[:, 0] + 0.5 * listen + 1.8 * inhale, body[:, 1] - 0.6 * body[:, 3]], axis=1)
         )
+        # One conversion for the three joints: on a streaming step's few frames its cost is per call.
+        pose[:, [J["neck"], J["head"], J["spine1"]]] = (
+            yxz_axis_angle(np.concatenate([0.4 * head, 0.6 * head, lower_back])).reshape(3, n, 3).transpose(1, 0, 2)
+        )
+        pose[:, J["pelvis"], 2] = rad(body[:, 3])
         # Breathing lifts the chest and shoulders (a deeper breath before a turn); the torso sways
         # a little while talking.
         breath = posture["breath"] + 1.6 * inhale
