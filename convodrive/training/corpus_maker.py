@@ -42,15 +42,30 @@ class Speaker:
     rate: int
 
 
+def _style(
+    expressiveness: float, variability: float, gestures: bool, gaze_aversion: float, gaze_range: float
+) -> dict[str, Any]:
+    """A speaker's procedural generator options."""
+    return {
+        "expressiveness": expressiveness,
+        "variability": variability,
+        "gestures": gestures,
+        "gaze_aversion": gaze_aversion,
+        "gaze_range": gaze_range,
+    }
+
+
 SPEAKERS: tuple[Speaker, ...] = (
-    Speaker("calm", {"expressiveness": 0.6, "variability": 0.6, "gestures": False}, "m3", 35, 150),
-    Speaker("animated", {"expressiveness": 1.7, "variability": 1.3, "gestures": True}, "f2", 65, 185),
-    Speaker("reserved", {"expressiveness": 0.35, "variability": 1.0, "gestures": False}, "f4", 55, 160),
-    Speaker("restless", {"expressiveness": 1.2, "variability": 2.2, "gestures": True}, "m6", 45, 175),
-    Speaker("steady", {"expressiveness": 1.0, "variability": 0.3, "gestures": True}, "m1", 40, 165),
-    Speaker("expansive", {"expressiveness": 2.0, "variability": 1.0, "gestures": True}, "f5", 70, 170),
+    Speaker("calm", _style(0.6, 0.6, False, gaze_aversion=0.8, gaze_range=0.8), "m3", 35, 150),
+    Speaker("animated", _style(1.7, 1.3, True, gaze_aversion=1.5, gaze_range=1.3), "f2", 65, 185),
+    Speaker("reserved", _style(0.35, 1.0, False, gaze_aversion=1.8, gaze_range=0.6), "f4", 55, 160),
+    Speaker("restless", _style(1.2, 2.2, True, gaze_aversion=2.2, gaze_range=1.5), "m6", 45, 175),
+    Speaker("steady", _style(1.0, 0.3, True, gaze_aversion=0.4, gaze_range=0.8), "m1", 40, 165),
+    Speaker("expansive", _style(2.0, 1.0, True, gaze_aversion=1.0, gaze_range=1.6), "f5", 70, 170),
 )
-"""The speaker styles: motion from expressiveness, variability and gesture habits, each with a voice."""
+"""The speaker styles, each with a voice: how much they move, how alike their takes are, whether they
+gesture, and how they look at the partner (the reserved look away often but not far, the steady
+hold their gaze, the restless and the expansive look far away)."""
 
 PARTNER_VARIANTS = ("m2", "m4", "m5", "m7", "f1", "f3", "klatt", "klatt4", "steph", "david", "annie", "andy")
 LANGUAGES: tuple[tuple[str, float], ...] = (

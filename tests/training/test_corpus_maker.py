@@ -10,6 +10,7 @@ import pytest
 
 from convodrive.audio.source import DyadicAudio
 from convodrive.corpus import Corpus
+from convodrive.eval.behaviour import GAZE_AT_PARTNER_DEG
 from convodrive.generators.procedural import ProceduralGenerator
 from convodrive.motion.skeleton import JOINT_INDEX
 from convodrive.training.corpus_maker import SPEAKERS, make_corpus, plan_corpus
@@ -72,14 +73,20 @@ def test_speaker_styles_move_differently() -> None:
     plan = plan_corpus(1.0, seed=2)[0]
     d = synthesize((plan.self_voice, plan.partner_voice), 30.0, np.random.default_rng(3))
     audio = DyadicAudio(d.audio[:, 0], d.audio[:, 1])
-    energy = {}
+    energy, gaze = {}, {}
     for speaker in SPEAKERS:
         clip = ProceduralGenerator({**speaker.style, "phones": False}).generate(audio, seed=5)[0]
         head = np.diff(clip.pose[:, JOINT_INDEX["head"]], axis=0)
         wrist = np.diff(clip.pose[:, JOINT_INDEX["right_elbow"]], axis=0)
         energy[speaker.label] = (np.abs(head).mean(), np.abs(wrist).mean())
+        eye = np.degrees(np.linalg.norm(clip.pose[:, JOINT_INDEX["left_eye_smplhf"]], axis=1))
+        away = eye > GAZE_AT_PARTNER_DEG
+        gaze[speaker.label] = (away.mean(), eye[away].mean() if away.any() else 0.0)
     assert energy["expansive"][0] > 1.5 * energy["reserved"][0]
     assert energy["animated"][1] > 1.5 * energy["calm"][1]  # gestures on versus off
+    # They look at the partner differently: how often they look away, and how far.
+    assert gaze["restless"][0] > 2.0 * gaze["steady"][0]
+    assert gaze["expansive"][1] > 1.5 * gaze["reserved"][1]
 
 
 @pytest.mark.espeak

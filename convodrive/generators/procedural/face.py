@@ -81,6 +81,7 @@ class FaceSynth:
         self.smile = one_pole(0.35)
         self.eyes = smoother(0.02, 2)
         self.rand = FrameNoise(seed, 11, dims=6)
+        self.gaze_rand = FrameNoise(seed, 12)  # whether a turn start looks away (gaze_aversion < 1)
         # Event state, carried between batches.
         self._since_blink = 99
         self._blink_phase = 0.0  # accumulated fraction of the mean inter-blink interval
@@ -121,7 +122,7 @@ class FaceSynth:
             face[:, B[ch]] += 0.12 * inhale * (1.0 - drive)
 
         r = self.rand.take(first, n)
-        blinks, gaze = self._events(first, r, vad_self, o["vad"], listener)
+        blinks, gaze = self._events(first, r, self.gaze_rand.take(first, n)[:, 0], vad_self, o["vad"], listener)
         lids = np.clip(self.blink(blinks), 0.0, 1.0)
         face[:, B["eyeBlinkLeft"]] = lids
         face[:, B["eyeBlinkRight"]] = lids
@@ -163,14 +164,22 @@ class FaceSynth:
         return np.clip(face, 0.0, 1.0), jaw_open * JAW_MAX_RAD, eyes
 
     def _events(
-        self, first: int, r: np.ndarray, vad_self: np.ndarray, vad_other: np.ndarray, listener: dict[str, np.ndarray]
+        self,
+        first: int,
+        r: np.ndarray,
+        r_avert: np.ndarray,
+        vad_self: np.ndarray,
+        vad_other: np.ndarray,
+        listener: dict[str, np.ndarray],
     ) -> tuple[np.ndarray, np.ndarray]:
         """Blink impulses and the gaze target, frame by frame (light scalar work only)."""
         n = len(vad_self)
         blinks = np.zeros(n)
         gaze = np.empty((n, 2))
         v = self.o.variability
+        aversion, reach = self.o.gaze_aversion, self.o.gaze_range
         u = r.tolist()
+        avert_at_onset = (r_avert < aversion).tolist()
         vs, vo = vad_self.tolist(), vad_other.tolist()
         asked_blink, glance = listener["blink"].tolist(), listener["glance_frames"].tolist()
         glance_yaw, glance_pitch = listener["glance_yaw"].tolist(), listener["glance_pitch"].tolist()
@@ -199,14 +208,14 @@ class FaceSynth:
                 self._turn_blink_at = -1
             # Gaze: at the partner while listening; averted when taking the turn; saccades.
             yaw, pitch = self._gaze
-            if self_onset:
+            if self_onset and avert_at_onset[j]:
                 side = 1.0 if u[j][1] < 0.5 else -1.0
-                yaw = side * math.radians(9.0 + 7.0 * v * u[j][2])
-                pitch = math.radians(-5.0 if u[j][3] < 0.4 else 4.0)
+                yaw = side * math.radians(9.0 + 7.0 * v * u[j][2]) * reach
+                pitch = math.radians(-5.0 if u[j][3] < 0.4 else 4.0) * reach
                 self._avert_until = k + int(18 + 24 * u[j][4])
                 self._next_saccade = self._avert_until
             elif glance[j] > 0 and not sp:  # the listener glances away
-                yaw, pitch = glance_yaw[j], glance_pitch[j]
+                yaw, pitch = glance_yaw[j] * reach, glance_pitch[j] * reach
                 self._avert_until = k + int(glance[j])
                 self._next_saccade = self._avert_until
                 self._listener_glance = True
@@ -215,9 +224,9 @@ class FaceSynth:
                 self._avert_until = -1
                 self._listener_glance = False
             elif k >= self._next_saccade:
-                if sp and u[j][3] < 0.12:  # an occasional look away mid-turn
-                    yaw = math.radians((6.0 + 6.0 * v * u[j][2]) * (1 if u[j][1] < 0.5 else -1))
-                    pitch = math.radians(3.0 * (u[j][4] - 0.5))
+                if sp and u[j][3] < 0.12 * aversion:  # an occasional look away mid-turn
+                    yaw = math.radians((6.0 + 6.0 * v * u[j][2]) * (1 if u[j][1] < 0.5 else -1)) * reach
+                    pitch = math.radians(3.0 * (u[j][4] - 0.5)) * reach
                     self._avert_until = k + int(12 + 15 * u[j][4])
                     self._next_saccade = self._avert_until
                 else:  # a micro-saccade around the partner's face

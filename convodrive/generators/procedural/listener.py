@@ -60,7 +60,7 @@ class ListenerSynth:
         self._turn_run = 0  # frames since the partner's turn began
         self._since_nod = 999
         self._since_glance = 0
-        self._glance_due = 150 + int(rng.integers(0, 200))
+        self._glance_due = self._glance_interval(150 + int(rng.integers(0, 200)))
         self._pending: list[tuple[int, str, float]] = []  # (frame, kind, size)
         self._smile_until = -1
         self._smile_level = 0.0
@@ -166,7 +166,12 @@ class ListenerSynth:
         out["glance_yaw"][j], out["glance_pitch"][j] = yaw, pitch
         out["glance_frames"][j] = 12 + int(18 * r[5])
         self._since_glance = 0
-        self._glance_due = int(150 + 240 * r[6] * (0.5 + 0.5 * v))  # every 5 to 13 s
+        self._glance_due = self._glance_interval(150 + 240 * r[6] * (0.5 + 0.5 * v))  # every 5 to 13 s
+
+    def _glance_interval(self, frames: float) -> int:
+        """Frames to the next glance: the default interval, shortened as ``gaze_aversion`` grows."""
+        aversion = self.o.gaze_aversion
+        return int(frames / aversion) if aversion > 0 else 1 << 62  # 0: never
 
     def _emit(self, out: dict[str, np.ndarray], j: int, k: int) -> None:
         keep = []

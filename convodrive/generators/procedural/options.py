@@ -21,6 +21,16 @@ class ProceduralOptions(PluginOptions):
         "fallback only (any language, about three times faster)",
     )
     gestures: bool = option(True, help="Beat gestures of the arms and hands on stressed syllables")
+    gaze_aversion: float = option(
+        1.0,
+        low=0,
+        high=3,
+        help="How often self looks away from the partner: at a turn's start, now and then mid-turn, and in "
+        "the listener's glances (0 never: the eyes stay on the partner with small saccades; 2 twice as often)",
+    )
+    gaze_range: float = option(
+        1.0, low=0.25, high=2, help="How far those looks away go, as a factor on their angles (0.5 half as far)"
+    )
     vad_on_db: float = option(
         -40.0, low=-100, high=0, help="Loudness (dBFS) at which a voice starts to count as speech"
     )
