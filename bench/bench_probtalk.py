@@ -6,6 +6,9 @@ Prints JSON with
   (fp32, int8), with ``--threads`` ONNX Runtime threads (the paper's Table 4 axis; its T = 8
   figure is 1067 frames/s on a TITAN Xp). Speed does not depend on the weights, so the graphs
   are exported from freshly initialised networks (``--model DIR`` times a trained folder too);
+- ``window_fps_per_cpu_second``: the same with one thread, frames per second of CPU time (what
+  one core does, whatever else the machine runs: quote it beside the wall-clock figures when the
+  machine is shared);
 - ``stage_ms``: where one T = 8 window's time goes (memory, MaskGIT passes, decoder, refiner);
 - ``file_rtf_one_thread``: real-time factor of ``generate`` in file mode on ``--seconds`` of
   audio with one thread (the ``small`` preset must reach 10);
@@ -24,6 +27,7 @@ import os
 import statistics
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -70,16 +74,18 @@ def _window_inputs(gen: ProbTalkGenerator, seed: int = 0) -> tuple[np.ndarray, n
     return audio, context
 
 
-def window_seconds(gen: ProbTalkGenerator, repeats: int, takes: int = 1) -> float:
-    """Median seconds of one window (after a warm-up run)."""
+def window_seconds(
+    gen: ProbTalkGenerator, repeats: int, takes: int = 1, clock: Callable[[], float] = time.perf_counter
+) -> float:
+    """Median seconds of one window (after a warm-up run), on ``clock`` (wall by default)."""
     audio, context = _window_inputs(gen)
     context = np.repeat(context, takes, axis=0)
     times = []
     for r in range(repeats + 1):
         rngs = [np.random.default_rng([r, k]) for k in range(takes)]
-        started = time.perf_counter()
+        started = clock()
         gen.run_window(audio, context, rngs)
-        times.append(time.perf_counter() - started)
+        times.append(clock() - started)
     return statistics.median(times[1:])
 
 
@@ -159,17 +165,21 @@ def main() -> int:
         if args.model is not None:
             folders["trained " + args.model.name] = args.model
         fps: dict[str, dict[str, float]] = {}
+        per_cpu: dict[str, dict[str, float]] = {}
         stages: dict[str, dict[str, float]] = {}
         for label, folder in folders.items():
-            fps[label] = {}
+            fps[label], per_cpu[label] = {}, {}
             for t in ITERATIONS:
                 gen = ProbTalkGenerator(
                     {"model": str(folder), "iterations": t, "threads": args.threads, "device": "cpu"}
                 )
                 fps[label][f"T={t}"] = round(WINDOW / window_seconds(gen, args.repeats), 1)
+                one = ProbTalkGenerator({"model": str(folder), "iterations": t, "threads": 1, "device": "cpu"})
+                per_cpu[label][f"T={t}"] = round(WINDOW / window_seconds(one, args.repeats, clock=time.process_time), 1)
                 if t == 8:
                     stages[label] = stage_ms(gen, args.repeats)
         out["window_fps"] = fps
+        out["window_fps_per_cpu_second"] = per_cpu
         out["stage_ms_T8"] = stages
         audio = speech_like(args.seconds)
         rtf: dict[str, Any] = {}
