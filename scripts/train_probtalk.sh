@@ -31,7 +31,7 @@ train() {
 }
 train vq 800
 train predictor 1200 --init "$runs/vq"
-train refiner 500 --init "$runs/predictor"
+train refiner 1500 --init "$runs/predictor"
 trained=$(date +%s)
 
 rm -rf "$runs/fp32" "$runs/int8"
