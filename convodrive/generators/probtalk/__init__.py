@@ -58,6 +58,12 @@ class ProbTalkOptions(LearnedOptions):
     speaker: str = option("", help="speaker style the model learned (its model card lists them); empty: the first")
     dyadic: bool = option(True, help="hear the partner's channel (false: the model hears silence there)")
     refine: bool = option(True, help="run the refiner (false: the predictor's coarse motion, for ablations)")
+    blend: int = option(
+        12,
+        low=0,
+        high=180,
+        help="frames over which a window eases from the motion it continues into its own (0: none, a jump may show at the seam)",
+    )
 
     def __post_init__(self) -> None:
         window, context = self.frames()
@@ -144,6 +150,8 @@ class ProbTalkGenerator(LearnedGenerator):
         motion = known_mask * known + (1 - known_mask) * coarse
         if self.refiner is not None:
             motion = self.refiner(motion=motion, audio=heard, known_mask=known_mask, speaker=speaker)["refined"]
+        if context is not None:
+            motion = ease_in(motion, context, min(self.options.blend, window - context.shape[1]))
         self.windows += 1
         return motion[:, :window]
 
@@ -157,3 +165,22 @@ class ProbTalkGenerator(LearnedGenerator):
             "refined": self.refine,
             "windows": self.windows,
         }
+
+
+def ease_in(motion: np.ndarray, context: np.ndarray, frames: int) -> np.ndarray:
+    """``motion`` (K, window, D) whose first new frames are offset so that they continue the known
+    ``context`` (K, C, D) at its own velocity, the offset fading linearly to nothing over ``frames``.
+
+    The codes of the token that holds the seam are sampled, not fitted to the known frames, so the
+    model's first new frame can sit several degrees away from the last known one; the refiner,
+    trained on reconstructions that agree with the known frames, does not close that gap.
+    """
+    c = context.shape[1]
+    if frames <= 0 or c < 2:
+        return motion
+    expected = 2 * context[:, -1] - context[:, -2]
+    offset = expected - motion[:, c]
+    ramp = (1 - np.arange(frames, dtype=np.float32) / frames)[None, :, None]
+    out = motion.copy()
+    out[:, c : c + frames] += offset[:, None, :] * ramp
+    return out
