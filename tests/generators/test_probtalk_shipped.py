@@ -1,0 +1,53 @@
+"""The probtalk weights shipped in the package: they load verified with their card, fit the package,
+and the mouth they make on the bundled dialogue follows self's voice and rests while self is silent."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from convodrive.audio.source import AudioSource
+from convodrive.eval.behaviour import behaviour_figures
+from convodrive.eval.segments import load_segments
+from convodrive.generators.probtalk import ProbTalkGenerator
+from tests.conftest import REPO
+
+pytestmark = pytest.mark.onnxruntime
+
+SHIPPED = ProbTalkGenerator.shipped_model
+assert SHIPPED is not None
+
+
+def test_the_shipped_folder_is_verified_small_enough_and_carded() -> None:
+    gen = ProbTalkGenerator()  # no model option: the shipped folder, every sha256 checked
+    assert Path(gen.folder.path) == SHIPPED and gen.folder.spec["preset"] == "small"
+    size = sum(f.stat().st_size for f in SHIPPED.iterdir())
+    assert size <= 20 * 2**20, f"{size / 2**20:.1f} MiB is more than the package ships"
+    card = (SHIPPED / "MODEL_CARD.md").read_text()
+    for needed in ("scripts/train_probtalk.sh", "corpus make", "## Licence", "FGD holistic", "knn", "random"):
+        assert needed in card, needed
+
+
+def test_the_shipped_mouth_follows_the_bundled_dialogue() -> None:
+    audio = AudioSource(REPO / "samples" / "dialogue.wav").read_all()
+    clip = ProbTalkGenerator().generate(audio, seed=0)[0]
+    figures = behaviour_figures(clip, audio, load_segments(REPO / "samples" / "dialogue.json"))
+    lips = figures["lip_sync"]
+    assert lips["pearson_jaw_vs_self_envelope"] >= 0.6, lips
+    assert lips["jaw_closed_when_self_silent"] >= 0.9, lips
+    # The body moves: not a statue, not noise.
+    speed = np.abs(np.diff(clip.pose, axis=0)).max(axis=(1, 2))
+    assert 1e-4 < np.median(speed) < 0.05, "radians a frame"
+
+
+def test_the_shipped_model_is_continuous_at_window_seams() -> None:
+    audio = AudioSource(REPO / "samples" / "dialogue.wav").read_all()
+    gen = ProbTalkGenerator()
+    clip = gen.generate(audio, seed=0)[0]
+    change = np.abs(np.diff(clip.pose, axis=0)).max(axis=(1, 2))  # change[i]: frame i+1 against frame i
+    seams = np.arange(gen.plan.hop, len(change) + 1, gen.plan.hop) - 1
+    inside = np.delete(change, seams)
+    assert len(seams) >= 4
+    assert change[seams].max() <= inside.max(), (change[seams], inside.max())
