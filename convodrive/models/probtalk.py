@@ -204,6 +204,11 @@ class MotionDecoder(nn.Module):
         return self.net(latent).transpose(1, 2)
 
 
+DEAD_SHARE = 0.03
+"""A code is dead below this fraction of a fair share of the latents (3 %: with EMA decay 0.99, a
+code at a fair share that stops being chosen is dead after about 350 steps)."""
+
+
 class ProductQuantizer(nn.Module):
     """G codebooks of K codes, each quantising its slice of the latent; EMA updates, dead-code reset.
 
@@ -212,7 +217,11 @@ class ProductQuantizer(nn.Module):
     latent.
 
     A code is dead when its running usage (EMA of how many latents chose it per step) falls below
-    one; it is replaced by a random latent of the current batch, so no code stays unused. Under
+    ``DEAD_SHARE`` of a fair share (latents per step / K); it is replaced by a random latent of the
+    current batch with a fair share of usage, so no code stays unused and a replaced code keeps its
+    place for hundreds of steps. (A fixed threshold of one latent per step replaced every code left
+    unchosen for a single step, over and over at small batches: codes churned, meant nothing, and
+    the decoder learnt to ignore them.) The first update draws every code from the batch. Under
     DDP the usage statistics are summed over processes and process 0's resets are broadcast, so
     every process keeps the same codebooks.
     """
@@ -272,19 +281,21 @@ class ProductQuantizer(nn.Module):
         if distributed:
             torch.distributed.all_reduce(counts)
             torch.distributed.all_reduce(sums)
+        first = bool(self.usage.sum() == 0)
         self.usage.mul_(self.decay).add_(counts, alpha=1 - self.decay)
         self.sums.mul_(self.decay).add_(sums, alpha=1 - self.decay)
         total = self.usage.sum(-1, keepdim=True)
         smoothed = (self.usage + self.eps) / (total + self.codes * self.eps) * total  # Laplace smoothing
         self.codebooks.copy_(F.normalize(self.sums / smoothed.unsqueeze(-1), dim=-1))
-        dead = self.usage < 1.0
+        fair = (total / self.codes).expand_as(self.usage)
+        dead = torch.ones_like(self.usage, dtype=torch.bool) if first else self.usage < DEAD_SHARE * fair
         if dead.any():
             n = flat.shape[1]
             pick = torch.randint(n, (self.groups, self.codes), generator=generator, device="cpu").to(flat.device)
             fresh = torch.gather(flat, 1, pick.unsqueeze(-1).expand(-1, -1, self.dim))
             self.codebooks[dead] = fresh[dead]
-            self.sums[dead] = fresh[dead]
-            self.usage[dead] = 1.0
+            self.usage[dead] = fair[dead]  # a fair share: hundreds of steps to be chosen before it counts as dead
+            self.sums[dead] = fresh[dead] * fair[dead].unsqueeze(-1)
         if distributed:
             for buffer in (self.codebooks, self.usage, self.sums):
                 torch.distributed.broadcast(buffer, 0)
