@@ -84,10 +84,17 @@ class LearnedGenerator(Generator):
 
     @abc.abstractmethod
     def run_window(
-        self, audio: np.ndarray, context: np.ndarray | None, rngs: Sequence[np.random.Generator]
+        self, audio: np.ndarray, context: np.ndarray | None, rngs: Sequence[np.random.Generator], state: Any = None
     ) -> np.ndarray:
         """(K, window, FEATURE_DIM) normalised motion for K takes, from ``audio`` (window, 2, bands)
-        log-mel and ``context`` (K, context, FEATURE_DIM) normalised motion (None for window 0)."""
+        log-mel and ``context`` (K, context, FEATURE_DIM) normalised motion (None for window 0).
+        ``state`` is what ``stream_state`` made for this stream (passed only when not None)."""
+
+    def stream_state(self, takes: int) -> Any:
+        """A new stream's state, which ``run_window`` carries from one window to the next (an
+        autoregressive cache, what earlier windows decided). Kept by the stream, not the
+        generator, so streams never share it. None (the default): windows need no state."""
+        return None
 
     def graph(self, name: str) -> Graph:
         """A session on one of the folder's graphs, with this generator's thread and device settings."""
@@ -113,13 +120,15 @@ class LearnedGenerator(Generator):
         motion = np.zeros((k, 0, rep.FEATURE_DIM), np.float32)
         a0 = m0 = plan.start(0)
         emitted = index = received = 0
+        state = self.stream_state(k)
+        carried = {} if state is None else {"state": state}
 
         def run(index: int, window_audio: np.ndarray) -> None:
             nonlocal motion
             start = plan.start(index)
             context = motion[:, start - m0 : start - m0 + plan.context] if index > 0 and plan.context else None
             rngs = [np.random.default_rng([int(s) & 0xFFFFFFFF, index]) for s in seeds]
-            out = np.asarray(self.run_window(window_audio, context, rngs), np.float32)
+            out = np.asarray(self.run_window(window_audio, context, rngs, **carried), np.float32)
             keep = plan.context if index > 0 else 0
             motion = np.concatenate([motion[:, : start + keep - m0], out[:, keep:]], axis=1)
 

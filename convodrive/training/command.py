@@ -39,9 +39,11 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--init",
         type=Path,
+        action="append",
         default=None,
         metavar="RUN",
-        help="start from the weights of another run or checkpoint of the model (e.g. its previous stage)",
+        help="start from the weights of another run or checkpoint of the model (e.g. its previous stage); "
+        "repeatable, for a stage that builds on several runs",
     )
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads per process (default 1)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

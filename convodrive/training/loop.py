@@ -15,6 +15,7 @@ import math
 import platform
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -45,9 +46,10 @@ class TrainRequest:
     """torch threads per process on the CPU: one by default, as oversubscribed cores make every
     thread spin and wait (measured on a shared 2-core machine: 2 threads ran 9x slower than 1)."""
     progress: bool = True
-    init: Path | None = None
-    """A run or checkpoint of the same model to start from (e.g. its previous stage); a run that
-    resumes from its own checkpoints ignores it."""
+    init: Path | Sequence[Path] | None = None
+    """A run or checkpoint of the same model to start from (e.g. its previous stage), or several
+    whose weights together are the start (a stage that builds on two others); a run that resumes
+    from its own checkpoints ignores it."""
     settings: dict[str, Any] = dataclasses.field(default_factory=dict)
     """Extra overrides of the model config or ``TrainConfig`` (``--set KEY=VALUE``)."""
 
@@ -166,7 +168,7 @@ def _train(
     out: Path,
     procs: distributed.Processes,
     show_progress: bool,
-    init: Path | None = None,
+    init: Path | Sequence[Path] | None = None,
 ) -> TrainResult:
     if train_cfg.batch_size % procs.world_size:
         raise UserError(
@@ -194,7 +196,8 @@ def _train(
     net = recipe.build_model(model_cfg, data.spec, stage).to(procs.device)
     optimizer = torch.optim.AdamW(net.parameters(), lr=train_cfg.lr, weight_decay=train_cfg.weight_decay)
     step = 0
-    start = _starting_point(recipe, init) if resume is None and init is not None else None
+    inits = [init] if isinstance(init, (str, Path)) else list(init or [])
+    start = _starting_point(recipe, inits) if resume is None and inits else None
     if resume is None:
         recipe.initialise(net, start, data.spec, stage)
     if resume is not None:
@@ -293,11 +296,35 @@ def _train(
     return TrainResult(out, step, last_ckpt, validation, rate)
 
 
-def _starting_point(recipe: Recipe, path: Path) -> StartingPoint:
-    ckpt = load_checkpoint(path)
-    if ckpt.state.get("recipe") != recipe.name:
-        raise UserError(f"--init {path}: holds a '{ckpt.state.get('recipe')}' run, not '{recipe.name}'")
-    return StartingPoint(ckpt.path, str(ckpt.state["stage"]), ckpt.step, ckpt.model_weights(), ckpt.data_spec())
+def _starting_point(recipe: Recipe, paths: Sequence[Path]) -> StartingPoint:
+    """The weights of one run, or of several merged (a tensor two of them hold must agree)."""
+    points = []
+    for path in paths:
+        ckpt = load_checkpoint(path)
+        if ckpt.state.get("recipe") != recipe.name:
+            raise UserError(f"--init {path}: holds a '{ckpt.state.get('recipe')}' run, not '{recipe.name}'")
+        points.append(
+            StartingPoint(ckpt.path, str(ckpt.state["stage"]), ckpt.step, ckpt.model_weights(), ckpt.data_spec())
+        )
+    first = points[0]
+    weights = dict(first.weights)
+    for other in points[1:]:
+        for key, value in other.weights.items():
+            if key in weights and (weights[key].shape != value.shape or not torch.equal(weights[key], value)):
+                raise UserError(
+                    f"--init {first.path} and {other.path}: both hold '{key}', with different values "
+                    "(runs of other data or settings?)"
+                )
+            weights[key] = value
+    if len(points) == 1:
+        return first
+    return StartingPoint(
+        Path(",".join(str(p.path) for p in points)),
+        "+".join(p.stage for p in points),
+        max(p.step for p in points),
+        weights,
+        first.spec,
+    )
 
 
 def _init_record(start: StartingPoint | None, resume: Any) -> dict[str, Any] | None:

@@ -17,6 +17,7 @@ from convodrive.training.recipe import Recipe
 RECIPES: dict[str, str] = {
     "fgd": "convodrive.training.recipes.fgd:FGDRecipe",
     "probtalk": "convodrive.training.recipes.probtalk:ProbTalkRecipe",
+    "a2p": "convodrive.training.recipes.a2p:A2PRecipe",
 }
 
 

@@ -1,0 +1,121 @@
+"""Diffusion sampling in NumPy around a graph that predicts clean motion (x0) from noisy motion.
+
+One definition of the noise schedule serves training (torch reads these arrays) and the runtime,
+so a model is sampled on the schedule it learned. The loops:
+
+- ``ddim_sample``: deterministic DDIM (eta 0) with any number of steps, spaced "trailing" (the
+  first step starts at the last diffusion step, so even one step starts from pure noise).
+- ``consistency_sample``: a distilled consistency model, which maps any noisy point straight to
+  x0; with more than one step, x0 is noised again to the next (lower) step with fresh noise.
+- ``guided``: classifier-free guidance with the conditional and unconditional passes as one
+  batch (the first half conditional), combined as ``uncond + scale * (cond - uncond)`` on x0.
+
+Both loops pin known frames (the previous window's last frames): every x0 gets them copied in, so
+a window continues its predecessor exactly (continuation by inpainting; the networks also see
+them as an input). Random numbers come from one generator per take (row), drawn in a fixed
+order, so a take is the same whether it runs alone or beside others.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+X0Fn = Callable[[np.ndarray, np.ndarray], np.ndarray]
+"""(x_t (B, T, D), steps (B,) int64) -> x0 (B, T, D)."""
+
+
+def cosine_schedule(steps: int = 1000, offset: float = 0.008, max_beta: float = 0.999) -> np.ndarray:
+    """Cumulative signal fractions alpha_bar (steps,) float64 of the cosine schedule (Nichol and
+    Dhariwal, improved DDPM; the reference's default): step t keeps sqrt(alpha_bar[t]) of x0."""
+    t = np.arange(steps + 1, dtype=np.float64) / steps
+    f = np.cos((t + offset) / (1 + offset) * np.pi / 2) ** 2
+    betas = np.minimum(1 - f[1:] / f[:-1], max_beta)
+    return np.cumprod(1 - betas)
+
+
+def ddim_timesteps(count: int, total: int = 1000) -> np.ndarray:
+    """``count`` diffusion steps out of ``total``, descending and evenly spaced, the first the
+    last step (``total - 1``): "trailing" spacing (Lin et al. 2024)."""
+    if not 1 <= count <= total:
+        raise ValueError(f"steps must be between 1 and {total}, got {count}")
+    return (np.round(np.arange(total, 0, -total / count)).astype(np.int64) - 1)[:count]
+
+
+def grid_timesteps(count: int, total: int, skip: int) -> np.ndarray:
+    """``count`` steps of the consistency-distillation grid (every ``skip``-th step, ending at
+    ``skip - 1``), descending from the last step, evenly spaced on the grid."""
+    points = total // skip
+    if not 1 <= count <= points:
+        raise ValueError(f"a distilled sampler takes 1 to {points} steps, got {count}")
+    return (np.round(np.arange(points, 0, -points / count)).astype(np.int64) * skip - 1)[:count]
+
+
+def noise_like(rngs: Sequence[np.random.Generator], shape: tuple[int, ...]) -> np.ndarray:
+    """(len(rngs), *shape) float32 standard normal noise, row b from ``rngs[b]``."""
+    return np.stack([rng.standard_normal(shape, dtype=np.float32) for rng in rngs])
+
+
+def pin(x0: np.ndarray, known: np.ndarray | None, known_mask: np.ndarray | None) -> np.ndarray:
+    if known is None or known_mask is None:
+        return x0
+    return known_mask * known + (1 - known_mask) * x0
+
+
+def guided(x0_fn: X0Fn, scale: float) -> X0Fn:
+    """x0 with classifier-free guidance. ``x0_fn`` gets the batch twice (conditional rows first,
+    then the same rows unconditional) in one call; scale 1 is the conditional model alone."""
+
+    def fn(x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        both = x0_fn(np.concatenate([x, x]), np.concatenate([steps, steps]))
+        cond, uncond = both[: len(x)], both[len(x) :]
+        return uncond + scale * (cond - uncond)
+
+    return fn
+
+
+def ddim_sample(
+    x0_fn: X0Fn,
+    noise: np.ndarray,
+    steps: int,
+    alpha_bar: np.ndarray,
+    known: np.ndarray | None = None,
+    known_mask: np.ndarray | None = None,
+) -> np.ndarray:
+    """x0 (B, T, D) by deterministic DDIM from ``noise`` (B, T, D) in ``steps`` steps."""
+    x = noise.astype(np.float32)
+    times = ddim_timesteps(steps, len(alpha_bar))
+    x0 = x
+    for i, t in enumerate(times):
+        x0 = pin(x0_fn(x, np.full(len(x), t, np.int64)).astype(np.float32), known, known_mask)
+        if i + 1 == len(times):
+            break
+        a_t, a_next = alpha_bar[t], alpha_bar[times[i + 1]]
+        eps = (x - np.sqrt(a_t) * x0) / np.sqrt(1 - a_t)
+        x = (np.sqrt(a_next) * x0 + np.sqrt(1 - a_next) * eps).astype(np.float32)
+    return x0
+
+
+def consistency_sample(
+    x0_fn: X0Fn,
+    noise: np.ndarray,
+    steps: int,
+    alpha_bar: np.ndarray,
+    skip: int,
+    rngs: Sequence[np.random.Generator],
+    known: np.ndarray | None = None,
+    known_mask: np.ndarray | None = None,
+) -> np.ndarray:
+    """x0 (B, T, D) from a consistency model in ``steps`` evaluations (multistep consistency
+    sampling: x0, then noised to the next grid step with fresh noise from ``rngs``)."""
+    x = noise.astype(np.float32)
+    times = grid_timesteps(steps, len(alpha_bar), skip)
+    x0 = x
+    for i, t in enumerate(times):
+        x0 = pin(x0_fn(x, np.full(len(x), t, np.int64)).astype(np.float32), known, known_mask)
+        if i + 1 == len(times):
+            break
+        a = alpha_bar[times[i + 1]]
+        x = (np.sqrt(a) * x0 + np.sqrt(1 - a) * noise_like(rngs, x.shape[1:])).astype(np.float32)
+    return x0
