@@ -19,11 +19,26 @@ order, so a take is the same whether it runs alone or beside others.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import Any, TypeVar
 
 import numpy as np
 
 X0Fn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """(x_t (B, T, D), steps (B,) int64) -> x0 (B, T, D)."""
+T = TypeVar("T")
+
+
+def noised(x0: T, noise: T, alpha_bar: Any) -> T:
+    """The forward process at a step whose signal fraction is ``alpha_bar``: sqrt(a) x0 +
+    sqrt(1 - a) noise. Plain arithmetic, so NumPy arrays and torch tensors (training) both work."""
+    return alpha_bar**0.5 * x0 + (1 - alpha_bar) ** 0.5 * noise  # type: ignore[operator]
+
+
+def ddim_step(x: T, x0: T, alpha_bar: Any, alpha_bar_next: Any) -> T:
+    """Deterministic DDIM (eta 0) from ``x`` at a step with signal fraction ``alpha_bar`` to the
+    step with ``alpha_bar_next``, given the predicted clean ``x0`` (NumPy or torch)."""
+    eps = (x - alpha_bar**0.5 * x0) / (1 - alpha_bar) ** 0.5  # type: ignore[operator]
+    return noised(x0, eps, alpha_bar_next)
 
 
 def cosine_schedule(steps: int = 1000, offset: float = 0.008, max_beta: float = 0.999) -> np.ndarray:
@@ -91,9 +106,7 @@ def ddim_sample(
         x0 = pin(x0_fn(x, np.full(len(x), t, np.int64)).astype(np.float32), known, known_mask)
         if i + 1 == len(times):
             break
-        a_t, a_next = alpha_bar[t], alpha_bar[times[i + 1]]
-        eps = (x - np.sqrt(a_t) * x0) / np.sqrt(1 - a_t)
-        x = (np.sqrt(a_next) * x0 + np.sqrt(1 - a_next) * eps).astype(np.float32)
+        x = ddim_step(x, x0, alpha_bar[t], alpha_bar[times[i + 1]]).astype(np.float32)
     return x0
 
 
@@ -116,6 +129,5 @@ def consistency_sample(
         x0 = pin(x0_fn(x, np.full(len(x), t, np.int64)).astype(np.float32), known, known_mask)
         if i + 1 == len(times):
             break
-        a = alpha_bar[times[i + 1]]
-        x = (np.sqrt(a) * x0 + np.sqrt(1 - a) * noise_like(rngs, x.shape[1:])).astype(np.float32)
+        x = noised(x0, noise_like(rngs, x.shape[1:]), alpha_bar[times[i + 1]]).astype(np.float32)
     return x0

@@ -50,7 +50,7 @@ from convodrive.models.a2p import (
     Memory,
 )
 from convodrive.motion import representation as rep
-from convodrive.neural.diffusion import cosine_schedule
+from convodrive.neural.diffusion import cosine_schedule, ddim_step, noised
 from convodrive.plumbing.errors import UserError
 from convodrive.training.config import Preset
 from convodrive.training.corpus_data import audio_stats, corpus_facts, open_corpus, train_stats
@@ -66,17 +66,17 @@ _SMALL: dict[str, Any] = {
     "face_width": 128,
     "face_layers": 4,
     "face_heads": 4,
-    "face_feedforward": 384,
+    "face_feedforward": 256,
     "face_cond_layers": 1,
     "body_width": 128,
-    "body_layers": 4,
+    "body_layers": 3,
     "body_heads": 4,
-    "body_feedforward": 384,
-    "body_post_layers": 3,
-    "lip_width": 96,
+    "body_feedforward": 256,
+    "body_post_layers": 0,
+    "lip_width": 64,
     "lip_layers": 3,
     "lip_heads": 4,
-    "lip_feedforward": 256,
+    "lip_feedforward": 192,
     "vq_codes": 256,
     "vq_width": 64,
     "guide_width": 96,
@@ -89,6 +89,7 @@ _SMALL: dict[str, Any] = {
     "min_window": 60,
     "context": 48,
 }
+"""The shipped model: teachers and students of both denoisers under 30 MB of float weights."""
 _TINY: dict[str, Any] = {
     "face_width": 16,
     "face_layers": 1,
@@ -146,7 +147,7 @@ class A2PRecipe(Recipe):
             {"batch_size": 32, "lr": 1e-4, "steps": 50000, "warmup_steps": 1000},
         ),
         "small": Preset(
-            "the shipped model: face and body 128-d x 4 layers, lip regressor 96-d x 3, RVQ 4 x 256 codes, "
+            "the shipped model: face 128-d x 4 layers, body 128-d x 3, lip regressor 64-d x 3, RVQ 4 x 256 codes, "
             "guide 96-d x 3 layers; 5 s windows",
             _SMALL,
             {"batch_size": 32, "lr": 5e-4, "steps": 3000, "warmup_steps": 100, "decay_steps": 2900, "val_every": 500},
@@ -321,9 +322,8 @@ def alpha_bar(config: A2PConfig) -> torch.Tensor:
     return torch.from_numpy(cosine_schedule(config.diffusion_steps)).float()
 
 
-def noised(x0: torch.Tensor, steps: torch.Tensor, noise: torch.Tensor, config: A2PConfig) -> torch.Tensor:
-    a = alpha_bar(config)[steps][:, None, None]
-    return a.sqrt() * x0 + (1 - a).sqrt() * noise
+def noised_at(x0: torch.Tensor, steps: torch.Tensor, noise: torch.Tensor, config: A2PConfig) -> torch.Tensor:
+    return noised(x0, noise, alpha_bar(config)[steps][:, None, None])
 
 
 def masked_mse(a: torch.Tensor, b: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
@@ -346,7 +346,7 @@ def denoiser_loss(
     known = known_prefix(b, t, config, generator)
     steps = torch.randint(config.diffusion_steps, (b,), generator=generator)
     noise = torch.randn(target.shape, generator=generator)
-    x0 = net.step(noised(target, steps, noise, config), steps, target, known, memory)
+    x0 = net.step(noised_at(target, steps, noise, config), steps, target, known, memory)
     rec = masked_mse(x0, target, feature_mask * (1 - known))
     vel = masked_mse(x0.diff(dim=1), target.diff(dim=1), feature_mask)
     return rec + velocity_weight * vel, {"x0": rec.detach(), "velocity": vel.detach()}
@@ -505,7 +505,7 @@ def consistency_loss(
     step, previous = n * skip - 1, (n - 1) * skip - 1
     scale = 1 + torch.rand(b, generator=generator) * (guidance_max - 1)
     noise = torch.randn(x0.shape, generator=generator)
-    x = noised(x0, step, noise, config)
+    x = noised_at(x0, step, noise, config)
     abar = alpha_bar(config)
     with torch.no_grad():
         both = teacher.step(
@@ -514,10 +514,8 @@ def consistency_loss(
         cond, uncond = both[:b], both[b:]
         guess = uncond + scale[:, None, None] * (cond - uncond)
         guess = known * x0 + (1 - known) * guess
-        a_t = abar[step][:, None, None]
         a_prev = torch.where(previous >= 0, abar[previous.clamp(min=0)], torch.ones(b))[:, None, None]
-        eps = (x - a_t.sqrt() * guess) / (1 - a_t).sqrt()
-        x_prev = a_prev.sqrt() * guess + (1 - a_prev).sqrt() * eps
+        x_prev = ddim_step(x, guess, abar[step][:, None, None], a_prev)
         answer = target_net.step(x_prev, previous.clamp(min=0), x0, known, target_memory, scale)
         answer = torch.where((previous < 0)[:, None, None], guess, answer)
     prediction = student.step(x, step, x0, known, student_memory, scale)

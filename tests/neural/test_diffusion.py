@@ -1,0 +1,115 @@
+"""Diffusion sampling in NumPy: the cosine schedule, step spacing, DDIM that recovers x0 when the
+network knows it, guidance as one batch, pinned known frames, takes independent of the batch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from convodrive.neural.diffusion import (
+    consistency_sample,
+    cosine_schedule,
+    ddim_sample,
+    ddim_step,
+    ddim_timesteps,
+    grid_timesteps,
+    guided,
+    noised,
+)
+
+ABAR = cosine_schedule(1000)
+
+
+def test_cosine_schedule_runs_from_signal_to_noise() -> None:
+    assert ABAR.shape == (1000,)
+    assert np.all(np.diff(ABAR) < 0)
+    assert ABAR[0] > 0.999 and ABAR[-1] < 1e-4
+    # Nichol and Dhariwal's alpha_bar(t) = f(t) / f(0), f = cos^2((t/T + s)/(1 + s) pi/2), away from the clip
+    t = 500
+    f = lambda u: np.cos((u / 1000 + 0.008) / 1.008 * np.pi / 2) ** 2  # noqa: E731
+    assert ABAR[t - 1] == pytest.approx(f(t) / f(0), rel=1e-9)
+
+
+def test_step_spacing_starts_at_the_last_step() -> None:
+    assert ddim_timesteps(1).tolist() == [999]
+    assert ddim_timesteps(4).tolist() == [999, 749, 499, 249]
+    assert ddim_timesteps(100)[:3].tolist() == [999, 989, 979] and ddim_timesteps(100)[-1] == 9
+    assert len(ddim_timesteps(1000)) == 1000 and ddim_timesteps(1000)[-1] == 0
+    assert grid_timesteps(4, 1000, 20).tolist() == [999, 759, 499, 239]
+    assert grid_timesteps(1, 1000, 20).tolist() == [999]
+    with pytest.raises(ValueError):
+        ddim_timesteps(0)
+    with pytest.raises(ValueError):
+        grid_timesteps(51, 1000, 20)
+
+
+def test_ddim_step_follows_the_deterministic_path() -> None:
+    rng = np.random.default_rng(0)
+    x0, eps = rng.standard_normal((2, 5, 3)), rng.standard_normal((2, 5, 3))
+    x_t = noised(x0, eps, ABAR[700])
+    np.testing.assert_allclose(ddim_step(x_t, x0, ABAR[700], ABAR[300]), noised(x0, eps, ABAR[300]), atol=1e-12)
+
+
+@pytest.mark.parametrize("steps", [1, 2, 4, 10, 25, 100])
+def test_ddim_recovers_x0_from_an_oracle(steps: int) -> None:
+    target = np.random.default_rng(1).standard_normal((3, 8, 4)).astype(np.float32)
+    noise = np.random.default_rng(2).standard_normal(target.shape).astype(np.float32)
+    calls = []
+
+    def oracle(x: np.ndarray, t: np.ndarray) -> np.ndarray:
+        calls.append(int(t[0]))
+        return target
+
+    np.testing.assert_allclose(ddim_sample(oracle, noise, steps, ABAR), target)
+    assert calls == ddim_timesteps(steps).tolist()
+
+
+def test_ddim_with_a_network_that_only_denoises_partly() -> None:
+    """Against the DDIM recursion written out: x0 = 0.5 x_t at every step."""
+    noise = np.random.default_rng(3).standard_normal((1, 4, 2)).astype(np.float32)
+    x = noise.astype(np.float64)
+    times = ddim_timesteps(3)
+    for i, t in enumerate(times):
+        x0 = 0.5 * x
+        if i + 1 < len(times):
+            eps = (x - np.sqrt(ABAR[t]) * x0) / np.sqrt(1 - ABAR[t])
+            x = np.sqrt(ABAR[times[i + 1]]) * x0 + np.sqrt(1 - ABAR[times[i + 1]]) * eps
+    out = ddim_sample(lambda x, t: 0.5 * x, noise, 3, ABAR)
+    np.testing.assert_allclose(out, x0, rtol=1e-5)
+
+
+def test_guidance_batches_both_halves_in_one_call() -> None:
+    calls = []
+
+    def x0_fn(x: np.ndarray, t: np.ndarray) -> np.ndarray:
+        calls.append(len(x))
+        out = np.zeros_like(x)
+        out[: len(x) // 2] = 3.0  # conditional rows
+        out[len(x) // 2 :] = 1.0  # unconditional rows
+        return out
+
+    got = guided(x0_fn, 2.5)(np.zeros((4, 2, 1), np.float32), np.zeros(4, np.int64))
+    assert calls == [8]
+    np.testing.assert_allclose(got, 1.0 + 2.5 * (3.0 - 1.0))
+
+
+def test_known_frames_are_pinned() -> None:
+    noise = np.random.default_rng(4).standard_normal((2, 10, 3)).astype(np.float32)
+    known = np.full((2, 10, 3), 7.0, np.float32)
+    mask = np.zeros((2, 10, 1), np.float32)
+    mask[:, :4] = 1
+    for out in (
+        ddim_sample(lambda x, t: x * 0.1, noise, 5, ABAR, known, mask),
+        consistency_sample(lambda x, t: x * 0.1, noise, 3, ABAR, 20, [np.random.default_rng(i) for i in range(2)], known, mask),
+    ):
+        assert np.all(out[:, :4] == 7.0) and not np.any(out[:, 4:] == 7.0)
+
+
+def test_a_take_is_the_same_alone_or_in_a_batch() -> None:
+    def x0_fn(x: np.ndarray, t: np.ndarray) -> np.ndarray:
+        return np.tanh(x) * (t[:, None, None] / 1000.0)
+
+    noise = np.random.default_rng(5).standard_normal((3, 6, 2)).astype(np.float32)
+    both = consistency_sample(x0_fn, noise, 4, ABAR, 20, [np.random.default_rng([7, i]) for i in range(3)])
+    alone = consistency_sample(x0_fn, noise[1:2], 4, ABAR, 20, [np.random.default_rng([7, 1])])
+    np.testing.assert_allclose(both[1:2], alone, rtol=1e-6)

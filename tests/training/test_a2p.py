@@ -1,0 +1,171 @@
+"""The a2p recipe: six stages train on a corpus, each from the runs it builds on (two for
+distillation), the mistakes of ordering them are one line; its ONNX graphs match torch, and the
+guide sampled through the exported step graph with its cache passed in and out equals sampling
+by re-running the torch model over the whole prefix."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.conftest import require, run_cli
+
+pytestmark = [require("torch"), require("onnxruntime")]
+
+import torch  # noqa: E402
+
+from convodrive.models.a2p import A2P  # noqa: E402
+from convodrive.neural.autoregressive import KVCache, sample_tokens, top_p  # noqa: E402
+from convodrive.neural.session import Graph, SessionOptions  # noqa: E402
+from convodrive.training.export import export_graph, parity, restore  # noqa: E402
+from convodrive.training.recipes.a2p_export import export_graphs  # noqa: E402
+
+TINY = ["--preset", "tiny", "--device", "cpu", "--no-progress", "--steps", "2"]
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Conversations long enough for a body example (7 s of VQ history and a 2 s window)."""
+    from tests.corpora import write_tiny_corpus
+
+    return write_tiny_corpus(tmp_path_factory.mktemp("a2p") / "corpus", conversations=4, seconds=12.0)
+
+
+@pytest.fixture(scope="module")
+def runs(corpus: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("a2p-runs")
+    for stage, inits in (
+        ("lip", []),
+        ("face", ["lip"]),
+        ("vq", []),
+        ("guide", ["vq"]),
+        ("body", ["guide"]),
+        ("distill", ["face", "body"]),
+    ):
+        args = [a for i in inits for a in ("--init", str(root / i))]
+        done = run_cli("train", "a2p", "--stage", stage, "--corpus", str(corpus), *TINY, "--out", str(root / stage), *args)
+        assert done.returncode == 0, done.stderr
+    return root
+
+
+def test_distillation_starts_from_both_sides_with_students_as_copies(runs: Path) -> None:
+    _, _, _, _, net = restore(runs / "distill")
+    assert isinstance(net, A2P) and net.face_student is not None and net.face is not None
+    _, _, _, _, face_run = restore(runs / "face")
+    assert isinstance(face_run, A2P) and face_run.face is not None
+    for a, b in zip(net.face.parameters(), face_run.face.parameters()):
+        assert torch.equal(a, b)  # the teacher is the face run's, untouched
+    moved = [float((a - b).abs().max()) for a, b in zip(net.face_student.layers.parameters(), net.face.layers.parameters())]
+    assert 0 < max(moved) < 0.1  # a copy of the teacher, moved by two steps
+
+
+def test_stages_out_of_order_are_one_line(corpus: Path, runs: Path, tmp_path: Path) -> None:
+    no_init = run_cli("train", "a2p", "--stage", "face", "--corpus", str(corpus), *TINY, "--out", str(tmp_path / "f"))
+    assert no_init.returncode == 2 and "--init" in no_init.stderr and "Traceback" not in no_init.stderr
+    one_side = run_cli(
+        "train", "a2p", "--stage", "distill", "--corpus", str(corpus), *TINY, "--out", str(tmp_path / "d"),
+        "--init", str(runs / "face"),
+    )  # fmt: skip
+    assert one_side.returncode == 2 and "vq" in one_side.stderr and "Traceback" not in one_side.stderr
+    wrong = run_cli(
+        "train", "a2p", "--stage", "guide", "--corpus", str(corpus), *TINY, "--out", str(tmp_path / "g"),
+        "--init", str(runs / "lip"),
+    )  # fmt: skip
+    assert wrong.returncode == 2 and "no trained vq network" in wrong.stderr
+    assert not (tmp_path / "f" / "checkpoints").exists()
+
+
+def test_two_inits_that_disagree_are_refused(corpus: Path, runs: Path, tmp_path: Path) -> None:
+    other = run_cli(
+        "train", "a2p", "--stage", "lip", "--corpus", str(corpus), *TINY, "--seed", "5", "--out", str(tmp_path / "lip5")
+    )
+    assert other.returncode == 0, other.stderr
+    both = run_cli(
+        "train", "a2p", "--stage", "face", "--corpus", str(corpus), *TINY, "--out", str(tmp_path / "f"),
+        "--init", str(runs / "lip"), "--init", str(tmp_path / "lip5"),
+    )  # fmt: skip
+    assert both.returncode == 2 and "different values" in both.stderr
+
+
+@pytest.fixture(scope="module")
+def graphs(runs: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[A2P, dict[str, Path]]:
+    """A few graphs of the distill stage exported (all twelve take minutes on a loaded machine;
+    ``convodrive export`` checks every one's parity when the shipped model is made)."""
+    _, _, _, spec, net = restore(runs / "distill")
+    assert isinstance(net, A2P)
+    folder = tmp_path_factory.mktemp("a2p-graphs")
+    paths = {}
+    for g in export_graphs(net, spec):
+        if g.name in ("guide_step", "face_student_step", "body_memory"):
+            paths[g.name] = folder / f"{g.name}.onnx"
+            export_graph(g, paths[g.name])
+            worst = max(parity(g, paths[g.name], sizes=(1, 7, 33)).values())
+            assert worst < 1e-4, (g.name, worst)
+    return net, paths
+
+
+def test_guide_sampling_through_the_step_graph_equals_a_full_torch_rerun(graphs: tuple[A2P, dict[str, Path]]) -> None:
+    """Tokens drawn with ONNX Runtime, one step per token and the cache passed in and out (from
+    an empty one, and sliding past the band), are those the whole-prefix torch model gives for the
+    same uniform draws."""
+    net, paths = graphs
+    guide = net.guide
+    assert guide is not None
+    step_graph = Graph(paths["guide_step"], SessionOptions(threads=1, device="cpu"))
+    config = net.config
+    takes, seconds, levels, span = 2, 5, config.vq_levels, config.guide_audio_span
+    torch.manual_seed(3)
+    memory = guide.audio_memory(torch.randn(1, seconds + span - 1, 30, 2 * 80)).repeat(takes, 1, 1)
+    speaker = np.zeros(takes, np.int64)
+    cache = KVCache.empty(config.guide_layers, takes, config.guide_heads, config.guide_width // config.guide_heads, config.guide_band, guide.start_token)
+    rngs = [np.random.default_rng([9, t]) for t in range(takes)]
+    tokens = []
+    for second in range(seconds):
+        band = memory[:, second : second + span].detach().numpy()
+
+        def step(token, position, keys, values, band=band):
+            out = step_graph(token=token, position=position, audio=band, past_keys=keys, past_values=values, speaker=speaker)
+            return out["logits"], out["keys"], out["values"]
+
+        tokens.append(sample_tokens(step, cache, levels, 0.9, rngs))
+    drawn = np.concatenate(tokens, axis=1)
+    assert drawn.shape[1] > config.guide_band  # the cache slid
+    inputs = torch.cat([torch.full((takes, 1), guide.start_token), torch.from_numpy(drawn[:, :-1])], dim=1)
+    with torch.no_grad():
+        logits = guide(inputs, memory, torch.from_numpy(speaker)).numpy()
+    rngs = [np.random.default_rng([9, t]) for t in range(takes)]
+    for i in range(drawn.shape[1]):
+        expected = top_p(logits[:, i], 0.9, np.array([r.random() for r in rngs]))
+        np.testing.assert_array_equal(drawn[:, i], expected)
+
+
+def test_body_memory_graph_reads_guide_poses_at_any_count(graphs: tuple[A2P, dict[str, Path]]) -> None:
+    """The runtime passes as many guide poses as lie near the window, one when there is none."""
+    net, paths = graphs
+    body = net.body
+    assert body is not None
+    graph = Graph(paths["body_memory"], SessionOptions(threads=1, device="cpu"))
+    rng = np.random.default_rng(0)
+    for count in (1, 3, 9):
+        feed = {
+            "audio": (rng.standard_normal((1, 50, 2, 80)) - 8).astype(np.float32),
+            "guide": rng.standard_normal((1, count, 258)).astype(np.float32),
+            "guide_positions": (np.arange(count) * 30.0 - 20).astype(np.float32)[None],
+            "guide_valid": np.ones((1, count), np.float32),
+            "keep": np.ones((1, 2), np.float32),
+            "speaker": np.zeros(1, np.int64),
+        }
+        out = graph(feed)
+        with torch.no_grad():
+            want = body.memory(
+                [net.audio_norm(torch.from_numpy(feed["audio"]))],
+                torch.from_numpy(feed["keep"]),
+                torch.from_numpy(feed["speaker"]),
+                torch.from_numpy(feed["guide"]),
+                torch.from_numpy(feed["guide_positions"]),
+                torch.from_numpy(feed["guide_valid"]),
+            )
+        np.testing.assert_allclose(out["guide_keys"], want.keys[1].numpy(), atol=1e-4)
+        assert out["guide_bias"].shape == (1, 1, 1, count + 1)
