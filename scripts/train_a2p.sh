@@ -9,7 +9,8 @@
 # denoiser) share nothing, so they train at once, one process each (one core each on a 2-core
 # machine); distillation then trains both students in two DDP processes (one on a GPU). The
 # corpus is made unless CORPUS_DIR already holds one; a second run resumes each stage where it
-# stopped. SCALE=0.05 runs a twentieth of the steps (a quick check of the whole pipeline).
+# stopped. SCALE=0.05 runs a twentieth of the steps and warm-ups (a quick check of the whole
+# pipeline; the shipped weights' card says which SCALE made them).
 # Uses CUDA when torch sees a GPU (--device auto). Logs: RUN_DIR/{face,body,distill}.log.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -27,7 +28,7 @@ train() { # STAGE STEPS [ARGS...]: one stage, its learning rate decaying over it
     n=$(steps "$2")
     shift 2
     "$bin/convodrive" train a2p --stage "$stage" --corpus "$corpus" --preset small --seed 0 --no-progress \
-        --steps "$n" --set "decay_steps=$n" --set val_every=$((n / 4 + 1)) --out "$runs/$stage" "$@"
+        --steps "$n" --set "decay_steps=$n" --set "warmup_steps=$(steps 100)" --set val_every=$((n / 4 + 1)) --out "$runs/$stage" "$@"
 }
 
 [ -f "$corpus/manifest.json" ] || "$bin/convodrive" corpus make --hours 2 --out "$corpus" --seed 0
@@ -36,7 +37,7 @@ echo "train_a2p: corpus $corpus, runs in $runs, steps x $scale, $([ "$gpu" = 1 ]
 
 (train lip 1200 --set lr=1e-3 && train face 3600 --init "$runs/lip") >"$runs/face.log" 2>&1 &
 face=$!
-(train vq 3000 --set lr=1e-3 --set warmup_steps=20 && train guide 3000 --init "$runs/vq" &&
+(train vq 3000 --set lr=1e-3 --set "warmup_steps=$(steps 20)" && train guide 3000 --init "$runs/vq" &&
     train body 3200 --init "$runs/guide") >"$runs/body.log" 2>&1 &
 body=$!
 status=0
@@ -49,7 +50,7 @@ fi
 
 n=$(steps 700)
 distill=("a2p" --stage distill --corpus "$corpus" --preset small --seed 0 --no-progress --steps "$n"
-    --set "decay_steps=$n" --set lr=2e-4 --set val_every=$((n / 4 + 1)) --out "$runs/distill"
+    --set "decay_steps=$n" --set "warmup_steps=$(steps 20)" --set lr=2e-4 --set val_every=$((n / 4 + 1)) --out "$runs/distill"
     --init "$runs/face" --init "$runs/body")
 if [ "$gpu" = 1 ]; then
     "$bin/convodrive" train "${distill[@]}" >"$runs/distill.log" 2>&1
