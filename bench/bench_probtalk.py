@@ -16,7 +16,7 @@ Prints JSON with
 - ``samples_4``: seconds for 4 takes in one batched pass against 4 single ones;
 - the machine's load average before and after (the machine may be shared: quote it).
 
-Usage: .venv/bin/python bench/bench_probtalk.py [--presets paper,small] [--threads 2] [--repeats 5] [--model DIR]
+Usage: .venv/bin/python -m bench.bench_probtalk [--presets paper,small] [--threads 2] [--repeats 5] [--model DIR]
 """
 
 from __future__ import annotations
@@ -33,38 +33,12 @@ from typing import Any
 
 import numpy as np
 
-from convodrive.audio.logmel import MelSpec
-from convodrive.audio.source import DyadicAudio
+from bench.learned import speech_like, untrained_folder
 from convodrive.generators.probtalk import ProbTalkGenerator
 from convodrive.motion import representation as rep
 
 ITERATIONS = (1, 2, 4, 8, 16)
 WINDOW, CONTEXT = 180, 30
-
-
-def untrained_folder(preset: str, int8: bool, root: Path) -> Path:
-    """A probtalk model folder of fresh weights with a stand-in data spec (6 speakers, 80 bands)."""
-    from convodrive.training.export import export_untrained
-    from convodrive.training.recipe import DataSpec
-
-    spec = MelSpec()
-    dim, bands = rep.FEATURE_DIM, spec.bands
-    data = DataSpec(
-        info={
-            "layout": rep.layout(),
-            "corpus": {"name": "none (untrained weights for timing)", "audio_features": spec.to_dict()},
-            "speakers": [f"speaker{i}" for i in range(6)],
-        },
-        arrays={
-            "mean": np.zeros(dim, np.float32),
-            "std": np.ones(dim, np.float32),
-            "audio_mean": np.full(bands, -8.0, np.float32),
-            "audio_std": np.full(bands, 3.0, np.float32),
-        },
-    )
-    out = root / f"{preset}-{'int8' if int8 else 'fp32'}"
-    export_untrained("probtalk", data, out, preset=preset, int8=int8)
-    return out
 
 
 def _window_inputs(gen: ProbTalkGenerator, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -129,23 +103,6 @@ def stage_ms(gen: ProbTalkGenerator, repeats: int) -> dict[str, float]:
     return out
 
 
-def speech_like(seconds: float, seed: int = 0) -> DyadicAudio:
-    """Two voices taking turns: syllable-rate modulated tones, 1-3 s turns with pauses."""
-    rate, rng = 16_000, np.random.default_rng(seed)
-    n = int(seconds * rate)
-    t = np.arange(n) / rate
-    voices = np.zeros((2, n), np.float32)
-    pos, who = 0, 0
-    while pos < n:
-        length = int(rng.uniform(1.0, 3.0) * rate)
-        seg = slice(pos, min(n, pos + length))
-        env = np.clip(np.sin(2 * np.pi * rng.uniform(3, 5) * t[seg]), 0, None)
-        voices[who, seg] = 0.3 * env * np.sin(2 * np.pi * rng.uniform(110, 220) * t[seg])
-        pos += length + int(rng.uniform(0.2, 0.6) * rate)
-        who = 1 - who
-    return DyadicAudio(voices[0], voices[1])
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--presets", default="paper,small")
@@ -161,7 +118,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="bench_probtalk_") as tmp:
         for preset in args.presets.split(","):
             for precision in args.precisions.split(","):
-                folders[f"{preset} {precision}"] = untrained_folder(preset, precision == "int8", Path(tmp))
+                folders[f"{preset} {precision}"] = untrained_folder("probtalk", preset, precision == "int8", Path(tmp))
         if args.model is not None:
             folders["trained " + args.model.name] = args.model
         fps: dict[str, dict[str, float]] = {}

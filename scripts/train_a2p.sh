@@ -10,7 +10,8 @@
 # machine); distillation then trains both students in two DDP processes (one on a GPU). The
 # corpus is made unless CORPUS_DIR already holds one; a second run resumes each stage where it
 # stopped. SCALE=0.05 runs a twentieth of the steps and warm-ups (a quick check of the whole
-# pipeline; the shipped weights' card says which SCALE made them).
+# pipeline; the shipped weights' card says which SCALE made them); STEPS_face=N (any stage)
+# sets one stage's steps.
 # Uses CUDA when torch sees a GPU (--device auto). Logs: RUN_DIR/{face,body,distill}.log.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -22,10 +23,14 @@ scale=${SCALE:-1}
 mkdir -p "$runs"
 
 steps() { "$bin/python" -c "print(max(4, round($1 * $scale)))"; }
+stage_steps() { # STAGE FULL: STEPS_<stage> if set, else FULL x SCALE
+    local named="STEPS_$1"
+    if [ -n "${!named:-}" ]; then echo "${!named}"; else steps "$2"; fi
+}
 
 train() { # STAGE STEPS [ARGS...]: one stage, its learning rate decaying over its steps
     local stage=$1 n
-    n=$(steps "$2")
+    n=$(stage_steps "$stage" "$2")
     shift 2
     "$bin/convodrive" train a2p --stage "$stage" --corpus "$corpus" --preset small --seed 0 --no-progress \
         --steps "$n" --set "decay_steps=$n" --set "warmup_steps=$(steps 100)" --set val_every=$((n / 4 + 1)) --out "$runs/$stage" "$@"
@@ -48,7 +53,7 @@ if [ "$status" != 0 ]; then
     exit "$status"
 fi
 
-n=$(steps 700)
+n=$(stage_steps distill 700)
 distill=("a2p" --stage distill --corpus "$corpus" --preset small --seed 0 --no-progress --steps "$n"
     --set "decay_steps=$n" --set "warmup_steps=$(steps 20)" --set lr=2e-4 --set val_every=$((n / 4 + 1)) --out "$runs/distill"
     --init "$runs/face" --init "$runs/body")

@@ -35,6 +35,9 @@ def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def runs(corpus: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The six stages, in process (the CLI's own path is under test below, in the mistakes)."""
+    from convodrive.training.loop import TrainRequest, train
+
     root = tmp_path_factory.mktemp("a2p-runs")
     for stage, inits in (
         ("lip", []),
@@ -44,9 +47,11 @@ def runs(corpus: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
         ("body", ["guide"]),
         ("distill", ["face", "body"]),
     ):
-        args = [a for i in inits for a in ("--init", str(root / i))]
-        done = run_cli("train", "a2p", "--stage", stage, "--corpus", str(corpus), *TINY, "--out", str(root / stage), *args)
-        assert done.returncode == 0, done.stderr
+        request = TrainRequest(
+            "a2p", corpus, preset="tiny", stage=stage, out=root / stage, steps=2, device="cpu", progress=False,
+            init=[root / i for i in inits] or None,
+        )  # fmt: skip
+        assert train(request).step == 2
     return root
 
 
@@ -57,7 +62,9 @@ def test_distillation_starts_from_both_sides_with_students_as_copies(runs: Path)
     assert isinstance(face_run, A2P) and face_run.face is not None
     for a, b in zip(net.face.parameters(), face_run.face.parameters()):
         assert torch.equal(a, b)  # the teacher is the face run's, untouched
-    moved = [float((a - b).abs().max()) for a, b in zip(net.face_student.layers.parameters(), net.face.layers.parameters())]
+    moved = [
+        float((a - b).abs().max()) for a, b in zip(net.face_student.layers.parameters(), net.face.layers.parameters())
+    ]
     assert 0 < max(moved) < 0.1  # a copy of the teacher, moved by two steps
 
 
@@ -119,14 +126,23 @@ def test_guide_sampling_through_the_step_graph_equals_a_full_torch_rerun(graphs:
     torch.manual_seed(3)
     memory = guide.audio_memory(torch.randn(1, seconds + span - 1, 30, 2 * 80)).repeat(takes, 1, 1)
     speaker = np.zeros(takes, np.int64)
-    cache = KVCache.empty(config.guide_layers, takes, config.guide_heads, config.guide_width // config.guide_heads, config.guide_band, guide.start_token)
+    cache = KVCache.empty(
+        config.guide_layers,
+        takes,
+        config.guide_heads,
+        config.guide_width // config.guide_heads,
+        config.guide_band,
+        guide.start_token,
+    )
     rngs = [np.random.default_rng([9, t]) for t in range(takes)]
     tokens = []
     for second in range(seconds):
         band = memory[:, second : second + span].detach().numpy()
 
         def step(token, position, keys, values, band=band):
-            out = step_graph(token=token, position=position, audio=band, past_keys=keys, past_values=values, speaker=speaker)
+            out = step_graph(
+                token=token, position=position, audio=band, past_keys=keys, past_values=values, speaker=speaker
+            )
             return out["logits"], out["keys"], out["values"]
 
         tokens.append(sample_tokens(step, cache, levels, 0.9, rngs))

@@ -1,0 +1,172 @@
+"""Benchmark of the a2p generator on this machine's CPU (ONNX Runtime + NumPy).
+
+Prints JSON with
+- ``rtf``: real-time factor of ``generate`` (lip, face, guide poses, body: all of it) on
+  ``--seconds`` of speech-like dialogue (20 s: the reference's longest input), for each preset
+  (``paper``, ``small``) and precision (fp32, int8), with DDIM at ``--ddim`` steps (classifier-free
+  guidance, both halves one batch) and the distilled sampler, ``--threads`` ONNX Runtime threads.
+  Speed does not depend on the weights, so the graphs are exported from fresh networks
+  (``--model DIR`` times a trained folder too). The reference: 0.062x on these 2 cores at DDIM 100
+  with guidance; targets: ``paper`` distilled >= 1x, ``small`` distilled >= 5x;
+- ``guide_80_tokens_s``: the guide transformer's time for 80 tokens (20 s of guide poses), in
+  torch: each token by re-running the whole prefix and re-encoding its audio (as the reference
+  samples), and one cached step a token; and through the ONNX step graph with its cache;
+- ``live``: look-ahead, a window's compute (median and worst) and their sum, the latency (target
+  <= 0.5 s), with the distilled sampler;
+- the machine's load average before and after (it may be shared: quote it).
+
+Usage: .venv/bin/python -m bench.bench_a2p [--presets paper,small] [--ddim 10,25,100] [--threads 2] [--model DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.learned import speech_like, untrained_folder
+from convodrive.audio.source import DyadicAudio
+from convodrive.generators.a2p import A2PGenerator
+from convodrive.neural.autoregressive import KVCache, sample_tokens
+
+TOKENS = 80
+
+
+def rtf(folder: Path, audio: DyadicAudio, threads: int, **options: Any) -> float:
+    gen = A2PGenerator({"model": str(folder), "threads": threads, "device": "cpu", **options})
+    started = time.perf_counter()
+    gen.generate(audio, seed=0)
+    return round(audio.duration / (time.perf_counter() - started), 3)
+
+
+def live_latency(folder: Path, audio: DyadicAudio, threads: int) -> dict[str, float]:
+    """Look-ahead plus a live window's compute, timed on every window of a stream."""
+    gen = A2PGenerator({"model": str(folder), "threads": threads, "device": "cpu", "mode": "live"})
+    spent: list[float] = []
+    run_window = gen.run_window
+
+    def timed(*args: Any, **kwargs: Any) -> Any:
+        started = time.perf_counter()
+        out = run_window(*args, **kwargs)
+        spent.append(time.perf_counter() - started)
+        return out
+
+    gen.run_window = timed  # type: ignore[method-assign]
+    for _ in gen.stream(audio.chunks(), seed=0):
+        pass
+    lookahead = gen.lookahead_frames / 30
+    median, worst = statistics.median(spent[1:]), max(spent[1:])
+    return {
+        "lookahead_s": round(lookahead, 3),
+        "hop_s": round(gen.plan.hop / 30, 3),
+        "window_ms_median": round(median * 1000, 1),
+        "window_ms_max": round(worst * 1000, 1),
+        "latency_s": round(lookahead + median, 3),
+        "latency_worst_s": round(lookahead + worst, 3),
+    }
+
+
+def guide_torch(preset: str, threads: int) -> dict[str, float]:
+    """Seconds for 80 guide tokens in torch: the whole prefix (and its audio) re-run at every
+    token, against one cached step a token (argmax picks: sampling costs the same in both)."""
+    import torch
+
+    from convodrive.models.a2p import A2P
+    from convodrive.training.registry import get_preset, get_recipe
+
+    torch.set_num_threads(threads)
+    recipe = get_recipe("a2p")
+    config = recipe.model_config(get_preset(recipe, preset)[1].model)
+    guide = A2P(config, 80, 6, "guide").guide
+    assert guide is not None
+    guide.eval()
+    levels, span = config.vq_levels, config.guide_audio_span
+    seconds = TOKENS // levels
+    chunks = torch.randn(1, span - 1 + seconds, 30, 160)
+    speaker = torch.zeros(1, dtype=torch.long)
+    with torch.no_grad():
+        started = time.perf_counter()
+        tokens = torch.full((1, 1), guide.start_token, dtype=torch.long)
+        for n in range(TOKENS):
+            memory = guide.audio_memory(chunks[:, : span + n // levels])
+            logits = guide(tokens, memory, speaker)[:, -1]
+            tokens = torch.cat([tokens, logits.argmax(-1, keepdim=True)], dim=1)
+        rerun = time.perf_counter() - started
+        started = time.perf_counter()
+        memory = guide.audio_memory(chunks)
+        keys, values = guide.empty_cache(1)
+        token = torch.full((1, 1), guide.start_token, dtype=torch.long)
+        for n in range(TOKENS):
+            second = n // levels
+            band = memory[:, second : second + span]
+            logits, keys, values = guide.step(token, torch.full((1, 1), n), band, keys, values, speaker)
+            keys, values = keys[:, :, :, -(config.guide_band - 1) :], values[:, :, :, -(config.guide_band - 1) :]
+            token = logits.argmax(-1, keepdim=True)
+        cached = time.perf_counter() - started
+    return {"torch_full_prefix_rerun": round(rerun, 3), "torch_kv_cache": round(cached, 4)}
+
+
+def guide_onnx(folder: Path, threads: int) -> float:
+    """Seconds for 80 guide tokens through the runtime's step graph, cache and nucleus sampling."""
+    gen = A2PGenerator({"model": str(folder), "threads": threads, "device": "cpu"})
+    state = gen.stream_state(1)
+    band = np.repeat(gen.silent_second[None, None], gen.span, axis=1)
+    step = gen._guide_step(band)
+    rng = [np.random.default_rng(0)]
+    started = time.perf_counter()
+    for _ in range(TOKENS // gen.levels):
+        sample_tokens(step, state.cache, gen.levels, gen.options.top_p, rng)
+    assert isinstance(state.cache, KVCache)
+    return round(time.perf_counter() - started, 4)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--presets", default="paper,small")
+    parser.add_argument("--precisions", default="fp32,int8")
+    parser.add_argument("--ddim", default="10,25,100", help="DDIM step counts to time (comma-separated)")
+    parser.add_argument("--threads", type=int, default=2, help="ONNX Runtime threads per graph")
+    parser.add_argument("--seconds", type=float, default=20.0, help="dialogue length for the real-time factors")
+    parser.add_argument("--model", type=Path, default=None, help="also time this trained model folder")
+    args = parser.parse_args()
+    out: dict[str, Any] = {"load_before": [round(x, 2) for x in os.getloadavg()], "cpus": os.cpu_count()}
+    out["seconds"], out["threads"] = args.seconds, args.threads
+    audio = speech_like(args.seconds)
+    ddim = [int(s) for s in args.ddim.split(",") if s]
+    with tempfile.TemporaryDirectory(prefix="bench_a2p_") as tmp:
+        folders: dict[str, Path] = {}
+        for preset in args.presets.split(","):
+            for precision in args.precisions.split(","):
+                folders[f"{preset} {precision}"] = untrained_folder("a2p", preset, precision == "int8", Path(tmp))
+        if args.model is not None:
+            folders["trained " + args.model.name] = args.model
+        table: dict[str, dict[str, float]] = {}
+        for label, folder in folders.items():
+            table[label] = {"distilled": rtf(folder, audio, args.threads)}
+            for steps in ddim:
+                table[label][f"ddim{steps}"] = rtf(folder, audio, args.threads, sampler="ddim", steps=steps)
+            print(json.dumps({label: table[label]}), flush=True)
+        out["rtf"] = table
+        out["guide_80_tokens_s"] = {
+            preset: {
+                **guide_torch(preset, args.threads),
+                "onnx_kv_cache": guide_onnx(folders[f"{preset} fp32"], args.threads),
+            }
+            for preset in args.presets.split(",")
+            if f"{preset} fp32" in folders
+        }
+        out["live"] = {label: live_latency(folder, speech_like(20.0, seed=1), 1) for label, folder in folders.items()}
+    out["load_after"] = [round(x, 2) for x in os.getloadavg()]
+    print(json.dumps(out, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
