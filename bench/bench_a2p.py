@@ -13,9 +13,13 @@ Prints JSON with
   samples), and one cached step a token; and through the ONNX step graph with its cache;
 - ``live``: look-ahead, a window's compute (median and worst) and their sum, the latency (target
   <= 0.5 s), with the distilled sampler;
+- ``long`` (with ``--model``, ``--long-minutes`` of the bundled dialogue looped): the largest frame
+  change (pose and face) at a window seam against the largest inside windows, and the peak of
+  traced memory after the first minute against at the end (constant memory);
 - the machine's load average before and after (it may be shared: quote it).
 
-Usage: .venv/bin/python -m bench.bench_a2p [--presets paper,small] [--ddim 10,25,100] [--threads 2] [--model DIR]
+Usage: .venv/bin/python -m bench.bench_a2p [--presets paper,small] [--ddim 10,25,100] [--threads 2]
+       [--model DIR [--long-minutes 10]]
 """
 
 from __future__ import annotations
@@ -127,6 +131,39 @@ def guide_onnx(folder: Path, threads: int) -> float:
     return round(time.perf_counter() - started, 4)
 
 
+def long_run(folder: Path, minutes: float) -> dict[str, Any]:
+    """Seams and memory of ``minutes`` of the bundled dialogue, looped, in file mode."""
+    import tracemalloc
+
+    from convodrive.audio.source import AudioSource
+    from convodrive.samples import bundled_dialogue
+
+    one = AudioSource(bundled_dialogue()).read_all()
+    times = int(np.ceil(minutes * 60 / one.duration))
+    audio = DyadicAudio(np.tile(one.self_voice, times), np.tile(one.other_voice, times))
+    gen = A2PGenerator({"model": str(folder), "device": "cpu"})
+    hop = gen.plan.hop
+    worst = {f"{part}_{where}": 0.0 for part in ("pose", "face") for where in ("seam", "inside")}
+    previous: tuple[np.ndarray, np.ndarray] | None = None
+    peaks = {}
+    tracemalloc.start()
+    for k, frame in enumerate(gen.stream(audio.chunks(), seed=0)):
+        now = (frame.pose.reshape(-1).copy(), frame.face.copy())
+        if previous is not None:
+            where = "seam" if k % hop == 0 else "inside"  # frame k is a window's first new frame
+            for part, a, b in zip(("pose", "face"), previous, now):
+                worst[f"{part}_{where}"] = max(worst[f"{part}_{where}"], float(np.abs(b - a).max()))
+        previous = now
+        if k == 30 * 60:
+            peaks["first_minute"] = tracemalloc.get_traced_memory()[1]
+    peaks["end"] = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    out: dict[str, Any] = {"seconds": round(audio.duration, 1), "windows": gen.windows, "hop": hop}
+    out["max_frame_change"] = {k: round(v, 5) for k, v in worst.items()}
+    out["traced_peak_mb"] = {k: round(v / 1e6, 2) for k, v in peaks.items()}
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--presets", default="paper,small")
@@ -135,6 +172,7 @@ def main() -> int:
     parser.add_argument("--threads", type=int, default=2, help="ONNX Runtime threads per graph")
     parser.add_argument("--seconds", type=float, default=20.0, help="dialogue length for the real-time factors")
     parser.add_argument("--model", type=Path, default=None, help="also time this trained model folder")
+    parser.add_argument("--long-minutes", type=float, default=0.0, help="seams and memory of a long run of --model")
     args = parser.parse_args()
     out: dict[str, Any] = {"load_before": [round(x, 2) for x in os.getloadavg()], "cpus": os.cpu_count()}
     out["seconds"], out["threads"] = args.seconds, args.threads
@@ -163,6 +201,8 @@ def main() -> int:
             if f"{preset} fp32" in folders
         }
         out["live"] = {label: live_latency(folder, speech_like(20.0, seed=1), 1) for label, folder in folders.items()}
+    if args.model is not None and args.long_minutes > 0:
+        out["long"] = long_run(args.model, args.long_minutes)
     out["load_after"] = [round(x, 2) for x in os.getloadavg()]
     print(json.dumps(out, indent=2))
     return 0

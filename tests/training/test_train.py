@@ -105,7 +105,7 @@ def test_a_resumed_run_continues_exactly(tiny_corpus: Path, tmp_path: Path) -> N
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["train", "nosuchmodel", "--corpus", "C"], "unknown model 'nosuchmodel' (available: fgd"),
+        (["train", "nosuchmodel", "--corpus", "C"], "unknown model 'nosuchmodel' (available: a2p, fgd"),
         (["train", "fgd", "--corpus", "C", "--preset", "huge"], "has no preset 'huge' (available: paper, small, tiny)"),
         (["train", "fgd", "--corpus", "C", "--preset", "tiny", "--set", "chanels=3"], "did you mean 'channels'"),
         (["train", "fgd", "--corpus", "NOPE", "--preset", "tiny"], "NOPE: no such corpus folder"),

@@ -1,0 +1,216 @@
+"""The a2p generator on a model folder of the tiny preset (fresh weights: these are contracts of
+the runtime, which hold whatever the weights): streaming equals offline; K takes in one batch
+equal K single takes; each window continues from its context; the guide carries across windows
+and streams never share it; live mode keeps its look-ahead; memory stays constant on long audio;
+options and mistakes are one line; the shipped weights drive a run that loads no torch."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from convodrive.audio.source import AudioChunk, DyadicAudio
+from convodrive.generators.base import take_seed
+from convodrive.motion import representation as rep
+from convodrive.plumbing.errors import InputFileError, UserError
+from tests.conftest import REPO, require, run_cli
+from tests.corpora import turn_taking_audio
+
+pytestmark = [require("torch"), require("onnxruntime"), pytest.mark.timeout(900)]
+"""The first test also pays for the model folder: twelve graphs exported, each checked for parity."""
+
+from convodrive.generators.a2p import BODY, FACE, A2PGenerator  # noqa: E402
+
+
+def _spec(speakers: list[str]):  # type: ignore[no-untyped-def]
+    from convodrive.audio.logmel import MelSpec
+    from convodrive.training.recipe import DataSpec
+
+    mel = MelSpec()
+    return DataSpec(
+        info={
+            "layout": rep.layout(),
+            "corpus": {"name": "none (tests)", "audio_features": mel.to_dict()},
+            "speakers": speakers,
+        },
+        arrays={
+            "mean": np.zeros(rep.FEATURE_DIM, np.float32),
+            "std": np.ones(rep.FEATURE_DIM, np.float32),
+            "audio_mean": np.full(mel.bands, -8.0, np.float32),
+            "audio_std": np.full(mel.bands, 3.0, np.float32),
+        },
+    )
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The tiny preset's distill stage, freshly initialised, exported with parity (60-frame windows)."""
+    from convodrive.training.export import export_untrained
+
+    out = tmp_path_factory.mktemp("a2p") / "model"
+    export_untrained("a2p", _spec(["calm", "lively"]), out, preset="tiny", seed=1)
+    return out
+
+
+def _audio(seconds: float, seed: int = 7) -> DyadicAudio:
+    voices = turn_taking_audio(seconds, seed=seed)
+    return DyadicAudio(voices[:, 0], voices[:, 1])
+
+
+def test_stream_equals_generate_and_takes_batch(model: Path) -> None:
+    audio = _audio(5.3)
+    gen = A2PGenerator({"model": str(model)})
+    assert gen.plan.window == 60 and gen.plan.context == 30
+    offline = gen.generate(audio, seed=5, num_samples=3)
+    assert [c.num_frames for c in offline] == [159] * 3
+    for chunk in (160, 2345):
+        frames = list(gen.stream(audio.chunks(chunk), seed=5))
+        np.testing.assert_array_equal(np.stack([f.pose for f in frames]), offline[0].pose)
+        np.testing.assert_array_equal(np.stack([f.face for f in frames]), offline[0].face)
+    alone = gen.generate(audio, seed=take_seed(5, 1))[0]
+    np.testing.assert_allclose(alone.pose, offline[1].pose, atol=1e-5)
+    np.testing.assert_allclose(alone.face, offline[1].face, atol=1e-5)
+    assert np.abs(offline[0].pose - offline[1].pose).max() > 1e-3  # takes differ
+
+
+def test_each_window_continues_from_its_context_and_the_guide_carries_on(model: Path) -> None:
+    gen = A2PGenerator({"model": str(model), "sampler": "ddim", "steps": 3})
+    contexts: list[np.ndarray | None] = []
+    outputs: list[np.ndarray] = []
+    seconds: list[int] = []
+    run = gen.run_window
+
+    def spy(audio, context, rngs, state=None):  # type: ignore[no-untyped-def]
+        out = run(audio, context, rngs, state=state)
+        contexts.append(None if context is None else context.copy())
+        outputs.append(out.copy())
+        seconds.append(state.next_second)
+        if context is not None:  # the known frames are kept, face and body
+            for part in (FACE, BODY):
+                np.testing.assert_allclose(out[:, : context.shape[1], part], context[..., part], atol=1e-6)
+        return out
+
+    gen.run_window = spy  # type: ignore[method-assign]
+    clip = gen.generate(_audio(5.3))[0]
+    assert len(outputs) == gen.plan.windows_for(159) == 6 and contexts[0] is None
+    for i in range(1, len(outputs)):
+        np.testing.assert_array_equal(contexts[i], outputs[i - 1][:, 30:60])  # the previous window's last 30
+    assert seconds == sorted(seconds) and seconds[-1] >= 5  # guide poses sampled second after second
+    start = gen.plan.start(len(outputs) - 1)
+    last = rep.decode(gen.stats.denormalise(outputs[-1][0, 30 : 159 - start]))
+    np.testing.assert_allclose(clip.pose[start + 30 : 159], last.pose, atol=1e-5)
+
+
+def test_streams_do_not_share_state(model: Path) -> None:
+    """Two streams of one generator interleaved give what each gives alone."""
+    gen = A2PGenerator({"model": str(model)})
+    a, b = _audio(4.0, seed=1), _audio(4.0, seed=2)
+    alone_a = np.stack([f.pose for f in gen.stream(a.chunks(1600), seed=3)])
+    alone_b = np.stack([f.pose for f in gen.stream(b.chunks(1600), seed=4)])
+    both_a, both_b = [], []
+    for fa, fb in zip(gen.stream(a.chunks(1600), seed=3), gen.stream(b.chunks(1600), seed=4)):
+        both_a.append(fa.pose)
+        both_b.append(fb.pose)
+    np.testing.assert_array_equal(np.stack(both_a), alone_a)
+    np.testing.assert_array_equal(np.stack(both_b), alone_b)
+
+
+def test_live_mode_declares_its_lookahead_and_keeps_it(model: Path) -> None:
+    gen = A2PGenerator({"model": str(model), "mode": "live"})
+    assert gen.plan.window == 60 and gen.plan.hop == 12
+    assert gen.lookahead_frames / 30 <= 0.5
+    audio = _audio(4.0)
+    received = 0
+
+    def chunks():  # type: ignore[no-untyped-def]
+        nonlocal received
+        for chunk in audio.chunks(400):
+            received += len(chunk)
+            yield chunk
+
+    for k, _ in enumerate(gen.stream(chunks(), seed=0)):
+        if received < len(audio.self_voice):  # before the end, frame k may only need audio to k + look-ahead
+            assert received <= (k + gen.lookahead_frames + 1) / 30 * 16000 + 400
+
+
+def test_memory_stays_constant_on_long_audio(model: Path) -> None:
+    gen = A2PGenerator({"model": str(model)})
+    tone = turn_taking_audio(2.0, seed=1)
+
+    def chunks(seconds: float):  # type: ignore[no-untyped-def]
+        for i in range(int(seconds / 2)):
+            yield AudioChunk(i * len(tone), tone[:, 0], tone[:, 1])
+
+    def peak(seconds: float) -> int:
+        tracemalloc.start()
+        for _ in gen.stream(chunks(seconds)):
+            pass
+        _, top = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        return top
+
+    short, long = peak(20), peak(120)
+    assert long < short * 1.3 + 200_000, (short, long)
+
+
+def test_guidance_and_sampler_options_change_the_motion(model: Path) -> None:
+    audio = _audio(2.5)
+    base = A2PGenerator({"model": str(model), "sampler": "ddim", "steps": 2}).generate(audio)[0]
+    guided = A2PGenerator({"model": str(model), "sampler": "ddim", "steps": 2, "guidance_body": 4.0}).generate(audio)[0]
+    assert np.abs(base.pose - guided.pose).max() > 1e-5
+    np.testing.assert_allclose(base.face, guided.face, atol=1e-6)  # the face's guidance is its own
+    distilled = A2PGenerator({"model": str(model), "steps": 1}).generate(audio)[0]
+    assert np.abs(base.pose - distilled.pose).max() > 1e-5
+
+
+def test_bad_options_and_folders_are_one_line(model: Path, tmp_path: Path) -> None:
+    wav = str(REPO / "samples" / "dialogue.wav")
+    out = run_cli("drive", wav, "--generator", "a2p", "-G", f"model={model}", "-G", "speaker=nobody",
+                  "--backend", "record", "--out", str(tmp_path / "o"))  # fmt: skip
+    assert out.returncode == 2 and "not one the model learned (calm, lively)" in out.stderr, out.stderr
+    assert len(out.stderr.splitlines()) == 1
+    with pytest.raises(UserError, match="steps must be at most 10"):
+        A2PGenerator({"model": str(model), "steps": 11})  # the tiny grid: 1000 steps / 100
+    with pytest.raises(UserError, match="mode"):
+        A2PGenerator({"model": str(model), "mode": "batch"})
+    meta = json.loads((model / "model.json").read_text())
+    students = [g for g in meta["graphs"] if "student" in g]
+    teacher_only = tmp_path / "teacher_only"
+    teacher_only.mkdir()
+    for item in model.iterdir():
+        if item.stem not in students:
+            (teacher_only / item.name).write_bytes(item.read_bytes())
+    meta["graphs"] = {k: v for k, v in meta["graphs"].items() if k not in students}
+    meta["files"] = {k: v for k, v in meta["files"].items() if Path(k).stem not in students}
+    (teacher_only / "model.json").write_text(json.dumps(meta))
+    with pytest.raises(InputFileError, match="export the distill stage"):
+        A2PGenerator({"model": str(teacher_only)})
+    A2PGenerator({"model": str(teacher_only), "sampler": "ddim"})  # the teachers alone run DDIM
+
+
+PROBE = """
+import json, sys
+from convodrive.cli.main import main
+rc = main(sys.argv[1:])
+loaded = sorted(m for m in sys.modules if m == "torch" or m.startswith("torch."))
+print(json.dumps({"rc": rc, "torch": loaded}))
+"""
+
+
+@pytest.mark.skipif(not (A2PGenerator.shipped_model / "model.json").exists(), reason="no shipped a2p weights")
+def test_the_shipped_weights_drive_a_run_that_loads_no_torch(tmp_path: Path) -> None:
+    result = subprocess.run(
+        [sys.executable, "-c", PROBE, "drive", str(REPO / "samples" / "dialogue.wav"), "--generator", "a2p",
+         "--backend", "record", "--out", str(tmp_path)],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    probe = json.loads(result.stdout.strip().splitlines()[-1])
+    assert probe == {"rc": 0, "torch": []}
+    assert (tmp_path / "motion.npz").exists()
