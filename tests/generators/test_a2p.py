@@ -67,15 +67,18 @@ def test_stream_equals_generate_and_takes_batch(model: Path) -> None:
     audio = _audio(5.3)
     gen = A2PGenerator({"model": str(model)})
     assert gen.plan.window == 60 and gen.plan.context == 30
+    single = gen.generate(audio, seed=5)[0]
+    for chunk in (160, 2345):  # however the audio comes, the same motion, to the bit
+        frames = list(gen.stream(audio.chunks(chunk), seed=5))
+        np.testing.assert_array_equal(np.stack([f.pose for f in frames]), single.pose)
+        np.testing.assert_array_equal(np.stack([f.face for f in frames]), single.face)
     offline = gen.generate(audio, seed=5, num_samples=3)
     assert [c.num_frames for c in offline] == [159] * 3
-    for chunk in (160, 2345):
-        frames = list(gen.stream(audio.chunks(chunk), seed=5))
-        np.testing.assert_array_equal(np.stack([f.pose for f in frames]), offline[0].pose)
-        np.testing.assert_array_equal(np.stack([f.face for f in frames]), offline[0].face)
+    # in a batch of three, a take is the one made alone up to the rounding of batched kernels
+    np.testing.assert_allclose(offline[0].pose, single.pose, atol=1e-4)
     alone = gen.generate(audio, seed=take_seed(5, 1))[0]
-    np.testing.assert_allclose(alone.pose, offline[1].pose, atol=1e-5)
-    np.testing.assert_allclose(alone.face, offline[1].face, atol=1e-5)
+    np.testing.assert_allclose(alone.pose, offline[1].pose, atol=1e-4)
+    np.testing.assert_allclose(alone.face, offline[1].face, atol=1e-4)
     assert np.abs(offline[0].pose - offline[1].pose).max() > 1e-3  # takes differ
 
 
