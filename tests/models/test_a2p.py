@@ -11,10 +11,10 @@ import pytest
 import torch
 
 from convodrive.models.a2p import (
+    A2P,
     BODY,
     FACE,
     LIP_OUTPUTS,
-    A2P,
     A2PConfig,
     Codebook,
     GuideVQ,
@@ -84,14 +84,26 @@ def test_shapes_at_several_lengths(model: A2P) -> None:
         assert lip.shape == (2, t, LIP_OUTPUTS)
         memory = model.face.memory([audio, lip], torch.ones(2, 2), _speaker(2))
         assert memory.keys[0].shape == (TINY.face_layers, 2, TINY.face_heads, t, TINY.face_width // TINY.face_heads)
-        x0 = model.face.step(torch.randn(2, t, FACE_DIM), torch.tensor([0, 999]), torch.zeros(2, t, FACE_DIM), torch.zeros(2, t, 1), memory)
+        x0 = model.face.step(
+            torch.randn(2, t, FACE_DIM),
+            torch.tensor([0, 999]),
+            torch.zeros(2, t, FACE_DIM),
+            torch.zeros(2, t, 1),
+            memory,
+        )
         assert x0.shape == (2, t, FACE_DIM)
         guides = model.vq.decode(torch.randint(TINY.vq_codes, (2, 3, TINY.vq_levels)))
         assert guides.shape == (2, 3, BODY_DIM)
         positions = torch.tensor([[-20.0, 10.0, 40.0]] * 2)
         memory = model.body.memory([audio], torch.ones(2, 2), _speaker(2), guides, positions, torch.ones(2, 3))
         assert memory.biases[1] is not None and memory.biases[1].shape == (2, 1, 1, 4)  # the poses and the sink
-        x0 = model.body.step(torch.randn(2, t, BODY_DIM), torch.tensor([5, 500]), torch.zeros(2, t, BODY_DIM), torch.zeros(2, t, 1), memory)
+        x0 = model.body.step(
+            torch.randn(2, t, BODY_DIM),
+            torch.tensor([5, 500]),
+            torch.zeros(2, t, BODY_DIM),
+            torch.zeros(2, t, 1),
+            memory,
+        )
         assert x0.shape == (2, t, BODY_DIM)
 
 
@@ -151,7 +163,9 @@ def test_dropped_conditions_are_not_heard(model: A2P) -> None:
     body = model.body
     assert body is not None
     guides = torch.randn(1, 2, BODY_DIM)
-    mem = body.memory([a], torch.tensor([[1.0, 0.0]]), _speaker(1), guides, torch.tensor([[0.0, 30.0]]), torch.ones(1, 2))
+    mem = body.memory(
+        [a], torch.tensor([[1.0, 0.0]]), _speaker(1), guides, torch.tensor([[0.0, 30.0]]), torch.ones(1, 2)
+    )
     assert mem.biases[1] is not None
     assert mem.biases[1][0, 0, 0].tolist() == [0.0, -1e9, -1e9]
 

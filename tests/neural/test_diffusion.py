@@ -100,7 +100,9 @@ def test_known_frames_are_pinned() -> None:
     mask[:, :4] = 1
     for out in (
         ddim_sample(lambda x, t: x * 0.1, noise, 5, ABAR, known, mask),
-        consistency_sample(lambda x, t: x * 0.1, noise, 3, ABAR, 20, [np.random.default_rng(i) for i in range(2)], known, mask),
+        consistency_sample(
+            lambda x, t: x * 0.1, noise, 3, ABAR, 20, [np.random.default_rng(i) for i in range(2)], known, mask
+        ),
     ):
         assert np.all(out[:, :4] == 7.0) and not np.any(out[:, 4:] == 7.0)
 
