@@ -77,15 +77,16 @@ def live_latency(folder: Path, audio: DyadicAudio, threads: int) -> dict[str, fl
     }
 
 
-def guide_torch(preset: str, threads: int) -> dict[str, float]:
-    """Seconds for 80 guide tokens in torch: the whole prefix (and its audio) re-run at every
-    token, against one cached step a token (argmax picks: sampling costs the same in both)."""
+def guide_torch(preset: str) -> dict[str, float]:
+    """Seconds for 80 guide tokens in torch, one thread (more spin and wait on a shared machine:
+    9 s instead of 0.3 s measured here): the whole prefix (and its audio) re-run at every token,
+    against one cached step a token (argmax picks: sampling costs the same in both)."""
     import torch
 
     from convodrive.models.a2p import A2P
     from convodrive.training.registry import get_preset, get_recipe
 
-    torch.set_num_threads(threads)
+    torch.set_num_threads(1)
     recipe = get_recipe("a2p")
     config = recipe.model_config(get_preset(recipe, preset)[1].model)
     guide = A2P(config, 80, 6, "guide").guide
@@ -194,7 +195,7 @@ def main() -> int:
         out["rtf"] = table
         out["guide_80_tokens_s"] = {
             preset: {
-                **guide_torch(preset, args.threads),
+                **guide_torch(preset),
                 "onnx_kv_cache": guide_onnx(folders[f"{preset} fp32"], args.threads),
             }
             for preset in args.presets.split(",")

@@ -210,7 +210,7 @@ def test_vq_loss_falls_on_a_tiny_batch() -> None:
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
-    assert float(loss) < 0.5 * first
+    assert float(loss.detach()) < 0.5 * first
 
 
 def test_stages_hold_their_networks_and_freeze_earlier_ones() -> None:
