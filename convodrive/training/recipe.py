@@ -148,6 +148,23 @@ class Recipe(abc.ABC):
         loss, _ = self.loss(model, data.val.batch(idx), ctx)
         return {"loss": float(loss)}
 
+    def mean_validation_figures(
+        self, model: torch.nn.Module, data: TrainingData, examples: int, chunk: int = 16
+    ) -> dict[str, float]:
+        """The loss and its figures averaged over chunks of the first ``examples`` validation
+        examples, each chunk with its own fixed seed (for recipes whose loss samples noise or masks)."""
+        if data.val is None or len(data.val) == 0:
+            return {}
+        index = np.arange(min(len(data.val), examples))
+        chunks = [index[i : i + chunk] for i in range(0, len(index), chunk)]
+        totals: dict[str, float] = {}
+        for i, part in enumerate(chunks):
+            ctx = StepContext(i, 0, 1, torch.Generator().manual_seed(1000 + i))
+            loss, figures = self.loss(model, data.val.batch(part), ctx)
+            for name, value in {"loss": loss, **figures}.items():
+                totals[name] = totals.get(name, 0.0) + float(value) / len(chunks)
+        return totals
+
     @abc.abstractmethod
     def export_graphs(self, model: torch.nn.Module, config: Any, spec: DataSpec, stage: str) -> Sequence[GraphSpec]: ...
 

@@ -193,17 +193,7 @@ class ProbTalkRecipe(Recipe):
     def validate(
         self, model: torch.nn.Module, data: TrainingData, config: ProbTalkConfig, stage: str
     ) -> dict[str, float]:
-        if data.val is None or len(data.val) == 0:
-            return {}
-        totals: dict[str, float] = {}
-        index = np.arange(min(len(data.val), 128))
-        chunks = [index[i : i + 16] for i in range(0, len(index), 16)]
-        for i, chunk in enumerate(chunks):
-            ctx = StepContext(i, 0, 1, torch.Generator().manual_seed(1000 + i))
-            loss, figures = self.loss(model, data.val.batch(chunk), ctx)
-            for name, value in {"loss": loss, **figures}.items():
-                totals[name] = totals.get(name, 0.0) + float(value) / len(chunks)
-        return totals
+        return self.mean_validation_figures(model, data, examples=128)
 
     # -- export ----------------------------------------------------------------------------------
     def export_graphs(
