@@ -137,7 +137,10 @@ def run(seconds: float, generator_options: list[str]) -> dict[str, object]:
             "dispatch_drift_frames": report["drift_frames"],
         },
         "playback": info["playback"],
-        "partner": {k: info["partner"].get(k) for k in ("resyncs", "late_ms", "lost", "overruns")},
+        "partner": {
+            k: info["partner"].get(k)
+            for k in ("resyncs", "late_blocks", "late_ms", "late_dropped_ms", "lost", "overruns")
+        },
         "servo": {"torque_off": dxl["report"].get("torque_off"), "status": dxl["health"].get("status")},
         "targets": TARGETS,
         "loadavg_before": [round(x, 2) for x in load_before],

@@ -13,14 +13,17 @@ A chunk is everything both voices have up to now, so the generator never waits l
 partner's latest block. Partner audio that has not arrived ``grace`` seconds after it was captured
 (a late callback, a microphone that went away) becomes silence, so the clock never waits either.
 
-How late audio arrives depends on the device and the load: an audio server may hold a
-microphone's blocks for tens of milliseconds, or 200 ms for an idle monitor. So ``grace`` (and
-with it the partner delay) follows the arrival ages: it rises to cover the latest block of a
-typical second among the last ``AGE_SECONDS`` (the median of each second's oldest block), so a
-device that is always late moves it and a single stall of the whole process (which makes every
-frame late anyway) does not; it falls back 5 ms at a time when ``DECAY_SECONDS`` in a row needed
-10 ms less. The input's first second, where servers deliver erratically, is not counted. Each
-change moves the partner's time line (a resync).
+How late audio arrives depends on the device and the load. A block that comes after its span was
+filled is a *late block*: its overdue part is dropped, the silence stays, and both are counted
+(``late_blocks``, ``late_ms``), so a late block costs a few milliseconds of partner audio, never
+latency. Only a device that is late most of the time moves the partner delay (an audio server
+that hands a microphone over in 20 ms bursts, an idle monitor held back 200 ms): ``grace`` (and
+with it the delay) rises to cover the 90th percentile of a typical second's arrival ages (the
+median over the last ``AGE_SECONDS`` seconds of each second's 90th percentile), so late blocks
+here and there and a stall of the whole process (which makes every frame late anyway) do not
+move it; it falls back 5 ms at a time when ``DECAY_SECONDS`` in a row needed 10 ms less. The
+input's first second, where servers deliver erratically, is not counted. Each change moves the
+partner's time line (a resync).
 """
 
 from __future__ import annotations
@@ -44,7 +47,8 @@ POLL_SECONDS = 0.002
 SETTLE_SECONDS = 1.0
 """Arrival ages in the input's first second do not move the partner delay (start-up bursts)."""
 AGE_SECONDS = 10
-GRACE_MARGIN = 0.005
+AGE_QUANTILE = 90.0
+"""Grace covers this percentile of a second's arrival ages; later blocks are filled, not waited for."""
 MAX_GRACE = 1.0
 DECAY_SECONDS = 10.0
 STEP = 0.005
@@ -55,7 +59,8 @@ class LiveAudio:
 
     ``time_at(mono)`` is the run's clock at monotonic time ``mono`` (None before the clock runs);
     ``self_end()`` the time-line position where a finite self voice ended (None while it goes on);
-    ``stop_at`` seconds end the run early (``--seconds``).
+    ``stop_at`` seconds end the run early (``--seconds``); ``monotonic`` is the clock capture
+    times are on (``time.monotonic``).
     """
 
     def __init__(
@@ -67,6 +72,7 @@ class LiveAudio:
         partner_delay: float,
         grace: float,
         stop_at: float | None = None,
+        monotonic: Callable[[], float] = time.monotonic,
     ) -> None:
         self.self_voice = self_voice
         self.self_end = self_end
@@ -76,9 +82,11 @@ class LiveAudio:
         self.grace = grace
         self.initial_delay = partner_delay
         self.base_grace = grace
-        self._worst: collections.deque[float] = collections.deque(maxlen=AGE_SECONDS)
-        """The oldest block's age in each of the last seconds."""
+        self.monotonic = monotonic
+        self._typical: collections.deque[float] = collections.deque(maxlen=AGE_SECONDS)
+        """The ``AGE_QUANTILE`` percentile of arrival ages in each of the last seconds."""
         self._second = -1
+        self._second_ages: list[float] = []
         self._first_block: float | None = None
         self._changed = 0.0
         self.stop_at = None if stop_at is None else int(round(stop_at * ANALYSIS_RATE))
@@ -91,6 +99,15 @@ class LiveAudio:
         self.resyncs = 0
         self.delay_changes = 0
         self.late_samples = 0
+        """Partner samples filled with silence because they had not arrived in time."""
+        self.late_blocks = 0
+        """Blocks that arrived after (part of) their span was filled."""
+        self.late_dropped = 0
+        """Samples of late blocks dropped: their span holds silence already."""
+        self._late_fill = 0
+        """Samples of silence at the line's end filled for audio that had not arrived."""
+        self._moved = False
+        """The partner delay changed: the next block is placed exactly where it now belongs."""
         self.dropped_early = 0
         self.events: list[dict[str, Any]] = []
         self._lost_reason: str | None = None
@@ -106,26 +123,32 @@ class LiveAudio:
         self._stopped = True
 
     def chunks(self) -> Iterator[AudioChunk]:
-        position = 0
         while not self._stopped:
-            self._take_partner()
-            end = self._end()
-            ready = self.self_voice.end
-            if self._partner_silent():
-                self.partner_line.fill_to(ready)
-            ready = min(ready, self.partner_line.end)
-            if end is not None:
-                ready = min(ready, end)
-                if self.partner_line.end < end and self._partner_silent():
-                    self.partner_line.fill_to(end)
-            if ready > position:
-                final = end is not None and ready >= end
-                yield AudioChunk(position, self.self_voice.take(ready), self.partner_line.take(ready), final=final)
-                position = ready
-                if final:
-                    return
-            else:
+            chunk = self.poll()
+            if chunk is None:
                 time.sleep(POLL_SECONDS)
+                continue
+            yield chunk
+            if chunk.final:
+                return
+
+    def poll(self) -> AudioChunk | None:
+        """Take what the partner delivered; the chunk both voices have ready, or None."""
+        self._take_partner()
+        end = self._end()
+        ready = self.self_voice.end
+        if self._partner_silent():
+            self.partner_line.fill_to(ready)
+        ready = min(ready, self.partner_line.end)
+        if end is not None:
+            ready = min(ready, end)
+            if self.partner_line.end < end and self._partner_silent():
+                self.partner_line.fill_to(end)
+        position = self.partner_line.taken
+        if ready <= position:
+            return None
+        final = end is not None and ready >= end
+        return AudioChunk(position, self.self_voice.take(ready), self.partner_line.take(ready), final=final)
 
     # -- the partner -----------------------------------------------------------------------------
     def _partner_silent(self) -> bool:
@@ -141,7 +164,7 @@ class LiveAudio:
 
     def _take_partner(self) -> None:
         for data, captured in self.partner.pull():
-            self._note_age(time.monotonic() - captured)
+            self._note_age(self.monotonic() - captured)
             at = self.time_at(captured)
             if at is None or at < 0:  # before time 0: the time line's start is silence already
                 self.dropped_early += len(data)
@@ -152,41 +175,52 @@ class LiveAudio:
         self._fill_late()
 
     def _note_age(self, age: float) -> None:
-        """Move ``grace`` (and the partner delay) to fit how late blocks have been arriving."""
+        """Move ``grace`` (and the partner delay) to fit how late blocks typically arrive."""
         self.age_ms.add(1000.0 * age)
-        now = time.monotonic()
+        now = self.monotonic()
         if self._first_block is None:
             self._first_block = now
         if now - self._first_block < SETTLE_SECONDS:
             return
         second = int(now - self._first_block)
-        if second != self._second:
-            self._second = second
-            self._worst.append(age)
-        else:
-            self._worst[-1] = max(self._worst[-1], age)
-        if len(self._worst) < 3:
+        if second == self._second:
+            self._second_ages.append(age)
             return
-        needed = min(float(np.median(self._worst)) + GRACE_MARGIN, MAX_GRACE)
-        if needed > self.grace:
-            self._set_grace(self.grace + math.ceil((needed - self.grace) / STEP) * STEP, needed, now)
+        if self._second_ages:
+            self._typical.append(float(np.percentile(self._second_ages, AGE_QUANTILE)))
+        self._second, self._second_ages = second, [age]
+        if len(self._typical) < 3:
+            return
+        needed = min(float(np.median(self._typical)), MAX_GRACE)
+        if needed > self.grace + 1e-9:
+            self._set_grace(self.grace + math.ceil((needed - self.grace) / STEP - 1e-9) * STEP, needed, now)
         elif now - self._changed > DECAY_SECONDS and self.grace - STEP >= max(needed + STEP, self.base_grace) - 1e-9:
             self._set_grace(self.grace - STEP, needed, now)
 
     def _set_grace(self, grace: float, needed: float, now: float) -> None:
         self.partner_delay += grace - self.grace
         self.grace = grace
+        self._moved = True
         self._changed = now
         self.delay_changes += 1
         self._event(
-            f"partner audio arrives up to {1000 * needed:.0f} ms after capture: "
+            f"partner audio typically arrives up to {1000 * needed:.0f} ms after capture: "
             f"partner delay now {1000 * self.partner_delay:.0f} ms"
         )
 
     def _place(self, data: np.ndarray, captured: float, target: int) -> None:
         line = self.partner_line
         off = target - line.end
-        if abs(off) > self._samples(RESYNC_SECONDS):
+        if off < 0 and self._late_fill:  # a late block: its head's span was filled already
+            cut = min(-off, len(data))
+            self.late_blocks += 1
+            self.late_dropped += cut
+            data = data[cut:]
+            captured += cut / ANALYSIS_RATE
+            off += cut
+            if not len(data):
+                return
+        if abs(off) > self._samples(RESYNC_SECONDS) or (off and self._moved):
             self.resyncs += 1
             if off > 0:
                 line.fill_to(target)
@@ -204,18 +238,21 @@ class LiveAudio:
             self.frame_capture.pop(self._next_frame - 300, None)
             self._next_frame += 1
         line.append(data)
+        self._late_fill = 0
+        self._moved = False
 
     def _fill_late(self) -> None:
         """Partner audio overdue by ``grace`` becomes silence, so the generator never waits on it."""
         if self._partner_end is not None:
             return
-        now = self.time_at(time.monotonic())
+        now = self.time_at(self.monotonic())
         if now is None:
             return
         due = self._samples(now + self.partner_delay - self.grace)
         filled = self.partner_line.fill_to(due)
         if filled and not self._lost():
             self.late_samples += filled
+            self._late_fill += filled
 
     def _end(self) -> int | None:
         """Where the run's audio ends: once every input that can end has, or at ``stop_at``."""
@@ -228,7 +265,7 @@ class LiveAudio:
         return ends
 
     def _event(self, text: str) -> None:
-        now = self.time_at(time.monotonic())
+        now = self.time_at(self.monotonic())
         self.events.append({"time": round(now, 3) if now is not None else None, "event": text})
 
     def report(self) -> dict[str, Any]:
@@ -238,7 +275,9 @@ class LiveAudio:
             "partner_delay_changes": self.delay_changes,
             "capture_to_available_ms": self.age_ms.summary(),
             "resyncs": self.resyncs,
+            "late_blocks": self.late_blocks,
             "late_ms": round(1000.0 * self.late_samples / ANALYSIS_RATE, 1),
+            "late_dropped_ms": round(1000.0 * self.late_dropped / ANALYSIS_RATE, 1),
             "before_start_ms": round(1000.0 * self.dropped_early / ANALYSIS_RATE, 1),
             "lost": self._lost_reason,
             "events": self.events,
