@@ -243,7 +243,9 @@ class _LiveRun:
                 raise InputFileError(path, "no such file (--partner takes an audio file or a capture device)")
             return FileAsMicrophone(path, ready=self._clock_running)
         device = find_device(spec, "input", "--partner")
-        return MicrophoneInput(device, ring_seconds=self.partner_delay + RING_SPARE)
+        return MicrophoneInput(
+            device, ring_seconds=self.partner_delay + RING_SPARE, latency=capture.PARTNER_LATENCY_SECONDS
+        )
 
     def _heard_by(self, rate: int) -> Callable[[], int]:
         """How far the speaker has got, in ring samples (the clock's stand-in without a speaker)."""

@@ -227,6 +227,8 @@ def test_microphone_that_disappears(pulse, tmp_path: Path) -> None:
     report = json.loads((out / "run_report.json").read_text())
     partner = report["live"]["partner"]
     assert partner["lost"], partner
+    assert partner["input_latency_ms"] <= 12.0, partner  # opened at 10 ms: PulseAudio calls back every 5 ms
+    assert {"late_blocks", "late_ms", "late_dropped_ms"} <= partner.keys()
     lost = [e for e in report["live"]["events"] if e["event"].startswith("partner input lost")]
     assert len(lost) == 1, report["live"]["events"]
     assert report["frames"] == pytest.approx(7 * 30, abs=10), "the run went on to the end of the self voice"

@@ -29,10 +29,11 @@ from convodrive.plumbing.errors import UserError
 
 BLOCK_SECONDS = 0.005
 """Capture block: 5 ms (a sample waits at most this long for its block to be handed over)."""
-LATENCY_SECONDS = 0.01
-"""Capture latency asked of PortAudio. Through PulseAudio's ALSA plugin, 20 ms comes as bursts of
-four blocks every 20 ms (arrival age p90 16 ms under load), 10 ms as one block every 5 ms (p90
-7 ms); ``bench.bench_capture`` measures it."""
+PARTNER_LATENCY_SECONDS = 0.01
+"""Capture latency asked of PortAudio for the partner. Through PulseAudio's ALSA plugin, 20 ms
+comes as bursts of four blocks every 20 ms (arrival age p90 16 ms under load), 10 ms as one block
+every 5 ms (p90 7 ms); ``bench.bench_capture`` measures it. A recording (``--monitor``), timed
+afterwards, keeps the roomier 20 ms."""
 LOST_SECONDS = 0.5
 """A microphone silent (no callbacks at all) for this long has gone away."""
 START_SECONDS = 5.0
@@ -89,7 +90,7 @@ class MicrophoneInput(PartnerInput):
     """A capture device through PortAudio; the callback only copies into a ring."""
 
     def __init__(
-        self, device: Device, ring_seconds: float, latency: float | str = LATENCY_SECONDS, keep_timing: bool = False
+        self, device: Device, ring_seconds: float, latency: float | str = 0.02, keep_timing: bool = False
     ) -> None:
         sd = portaudio()
         self.device = device
