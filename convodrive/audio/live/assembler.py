@@ -164,6 +164,8 @@ class LiveAudio:
 
     def _take_partner(self) -> None:
         for data, captured in self.partner.pull():
+            if self._lost_reason is not None:  # heard as silence from here on, whatever it sends
+                continue
             self._note_age(self.monotonic() - captured)
             at = self.time_at(captured)
             if at is None or at < 0:  # before time 0: the time line's start is silence already

@@ -14,7 +14,7 @@ from convodrive.audio.live.timeline import Timeline
 from convodrive.audio.source import ANALYSIS_RATE
 
 BLOCK = 80  # 5 ms
-DELAY, GRACE = 0.145, 0.010  # what a live run with `procedural` starts with
+DELAY, GRACE, SELF_LEAD = 0.145, 0.010, 0.148  # what a live run with `procedural` starts with
 SECONDS = 12.0
 T0 = 1000.0  # the monotonic time the run's clock reads 0
 
@@ -31,14 +31,19 @@ class ScriptedPartner(PartnerInput):
     """Block i holds samples numbered from 1 (sample m is the value m + 1, so 0 is silence),
     captured from ``T0 + i * 5 ms`` and handed over ``age(i)`` seconds after that, in order."""
 
-    def __init__(self, clock: FakeClock, age: list[float]) -> None:
+    def __init__(self, clock: FakeClock, age: list[float], lost_at: float | None = None) -> None:
         self.clock = clock
+        self.lost_at = lost_at
         arrival = T0 + np.arange(len(age)) * BLOCK / ANALYSIS_RATE + np.asarray(age)
         self.arrival = np.maximum.accumulate(arrival)  # a held block holds back those after it
         self.next = 0
 
     def start(self) -> None:
         pass
+
+    def lost(self) -> str | None:
+        gone = self.lost_at is not None and self.clock() >= T0 + self.lost_at
+        return "nothing for 0.5 s" if gone else None
 
     def pull(self) -> list[Captured]:
         out = []
@@ -49,16 +54,15 @@ class ScriptedPartner(PartnerInput):
         return out
 
 
-def run(age: list[float]) -> tuple[LiveAudio, np.ndarray, dict[int, float]]:
+def run(age: list[float], lost_at: float | None = None) -> tuple[LiveAudio, np.ndarray, dict[int, float]]:
     """Poll the assembler every millisecond of simulated time to ``SECONDS``; the partner's time
     line as the generator got it, and every frame's capture time."""
     clock = FakeClock()
     self_voice = Timeline()
-    self_voice.fill_to(int((SECONDS + 1) * ANALYSIS_RATE))  # the self voice is queued ahead
     audio = LiveAudio(
         self_voice,
         lambda: None,
-        ScriptedPartner(clock, age),
+        ScriptedPartner(clock, age, lost_at),
         lambda mono: mono - T0,
         DELAY,
         GRACE,
@@ -68,6 +72,7 @@ def run(age: list[float]) -> tuple[LiveAudio, np.ndarray, dict[int, float]]:
     partner, captures = [], {}
     while True:
         clock.now += 0.001
+        self_voice.fill_to(int((clock.now - T0 + SELF_LEAD) * ANALYSIS_RATE))  # queued ahead of the speaker
         chunk = audio.poll()
         captures.update(audio.frame_capture)
         if chunk is not None:
@@ -129,3 +134,19 @@ def test_a_device_that_is_always_late_moves_the_delay_once() -> None:
     assert audio.partner_delay == pytest.approx(DELAY + 0.015)
     assert_in_place(line, DELAY + 0.015, since=6.0)
     assert not np.any(line[int(6.0 * ANALYSIS_RATE) :] == 0)  # nothing late once it moved
+
+
+def test_a_lost_microphone_is_silence_not_late_blocks() -> None:
+    """Once the input is reported lost (a stall of half a second), what it still sends is not
+    placed, nor counted as late: the partner is silent from there on, and the report says why."""
+    blocks = int(SECONDS * ANALYSIS_RATE / BLOCK) + 40
+    age = [0.006] * blocks
+    age[1000] = 0.6  # at 5 s the device holds everything for 600 ms ...
+    audio, line, _ = run(age, lost_at=5.5)  # ... and is declared lost, then delivers again
+
+    assert audio.report()["lost"] == "nothing for 0.5 s"
+    assert audio.delay_changes == 0 and audio.resyncs == 0
+    assert audio.late_blocks == 0 and audio.late_dropped == 0
+    assert audio.late_samples == pytest.approx(0.5 * ANALYSIS_RATE, abs=0.01 * ANALYSIS_RATE)
+    assert_in_place(line[: int(5.0 * ANALYSIS_RATE)], DELAY)
+    assert not np.any(line[int((5.5 + DELAY) * ANALYSIS_RATE) :])
