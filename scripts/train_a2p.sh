@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Reproduce the a2p weights shipped in convodrive/generators/a2p/model/ from a fresh clone: a
 # 2-hour bootstrap corpus, the `a2p` recipe's `small` preset stage by stage, consistency
-# distillation, an ONNX export with its card.
+# distillation, ONNX exports in fp32 and int8, a comparison of both (distilled and DDIM samplers)
+# with knn and random on the corpus's test split, and the chosen folder with its card: int8
+# (every graph's MatMuls, dynamic) only where it costs under 5 % on FGD holistic; at most 30 MB.
 #
 #   scripts/setup.sh --dev && scripts/train_a2p.sh [CORPUS_DIR] [RUN_DIR] [MODEL_DIR]
 #
@@ -11,7 +13,10 @@
 # corpus is made unless CORPUS_DIR already holds one; a second run resumes each stage where it
 # stopped. SCALE=0.05 runs a twentieth of the steps and warm-ups (a quick check of the whole
 # pipeline; the shipped weights' card says which SCALE made them); STEPS_face=N (any stage)
-# sets one stage's steps.
+# sets one stage's steps. SHIP_ONLY=1 trains nothing (RUN_DIR's stages are done): it exports,
+# compares and ships. FGD uses the embedder shipped in convodrive/eval/fgd_model/ (made by
+# scripts/train_fgd.sh when missing) or FGD_MODEL=DIR; SAMPLES (default 2) sets the takes per
+# test conversation, MAX_CONVERSATIONS=N scores only the first N (default: all).
 # Uses CUDA when torch sees a GPU (--device auto). Logs: RUN_DIR/{face,body,distill}.log.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -20,6 +25,9 @@ runs=${2:-runs/a2p-small}
 model=${3:-convodrive/generators/a2p/model}
 bin=$(pwd)/.venv/bin
 scale=${SCALE:-1}
+samples=${SAMPLES:-2}
+conversations=${MAX_CONVERSATIONS:+--max-conversations $MAX_CONVERSATIONS}
+started=$(date +%s)
 mkdir -p "$runs"
 
 steps() { "$bin/python" -c "print(max(4, round($1 * $scale)))"; }
@@ -36,31 +44,110 @@ train() { # STAGE STEPS [ARGS...]: one stage, its learning rate decaying over it
         --steps "$n" --set "decay_steps=$n" --set "warmup_steps=$(steps 100)" --set val_every=$((n / 4 + 1)) --out "$runs/$stage" "$@"
 }
 
+train_all() { # the face and body sides at once, then both students distilled
+    local gpu face body status=0 n distill
+    gpu=$("$bin/python" -c "import torch; print(int(torch.cuda.is_available()))")
+    echo "train_a2p: corpus $corpus, runs in $runs, steps x $scale, $([ "$gpu" = 1 ] && echo GPU || echo CPU)"
+    (train lip 1200 --set lr=1e-3 && train face 3600 --init "$runs/lip") >"$runs/face.log" 2>&1 &
+    face=$!
+    (train vq 3000 --set lr=1e-3 --set "warmup_steps=$(steps 20)" && train guide 3000 --init "$runs/vq" &&
+        train body 3200 --init "$runs/guide") >"$runs/body.log" 2>&1 &
+    body=$!
+    wait $face || status=$?
+    wait $body || status=$?
+    if [ "$status" != 0 ]; then
+        echo "train_a2p: a stage failed; see $runs/face.log and $runs/body.log" >&2
+        exit "$status"
+    fi
+    n=$(stage_steps distill 700)
+    distill=("a2p" --stage distill --corpus "$corpus" --preset small --seed 0 --no-progress --steps "$n"
+        --set "decay_steps=$n" --set "warmup_steps=$(steps 20)" --set lr=2e-4 --set val_every=$((n / 4 + 1))
+        --out "$runs/distill" --init "$runs/face" --init "$runs/body")
+    if [ "$gpu" = 1 ]; then
+        "$bin/convodrive" train "${distill[@]}" >"$runs/distill.log" 2>&1
+    else
+        "$bin/python" -m torch.distributed.run --standalone --nproc_per_node 2 -m convodrive.training "${distill[@]}" >"$runs/distill.log" 2>&1
+    fi
+}
+
 [ -f "$corpus/manifest.json" ] || "$bin/convodrive" corpus make --hours 2 --out "$corpus" --seed 0
-gpu=$("$bin/python" -c "import torch; print(int(torch.cuda.is_available()))")
-echo "train_a2p: corpus $corpus, runs in $runs, steps x $scale, $([ "$gpu" = 1 ] && echo GPU || echo CPU)"
+[ "${SHIP_ONLY:-0}" = 1 ] || train_all
+trained=$(date +%s)
 
-(train lip 1200 --set lr=1e-3 && train face 3600 --init "$runs/lip") >"$runs/face.log" 2>&1 &
-face=$!
-(train vq 3000 --set lr=1e-3 --set "warmup_steps=$(steps 20)" && train guide 3000 --init "$runs/vq" &&
-    train body 3200 --init "$runs/guide") >"$runs/body.log" 2>&1 &
-body=$!
-status=0
-wait $face || status=$?
-wait $body || status=$?
-if [ "$status" != 0 ]; then
-    echo "train_a2p: a stage failed; see $runs/face.log and $runs/body.log" >&2
-    exit "$status"
-fi
+rm -rf "$runs/fp32" "$runs/int8"
+"$bin/convodrive" export "$runs/distill" --out "$runs/fp32"
+"$bin/convodrive" export "$runs/distill" --out "$runs/int8" --int8
+fgd=${FGD_MODEL:-convodrive/eval/fgd_model}
+[ -f "$fgd/model.json" ] || scripts/train_fgd.sh "$corpus"
+# The teacher graphs run only with the DDIM sampler: 10 steps (with guidance) measure their int8 cost.
+"$bin/convodrive" eval compare --corpus "$corpus" --split test --samples "$samples" $conversations --seed 0 --fgd-model "$fgd" \
+    --generators a2p,a2p-int8=a2p,a2p-ddim=a2p,a2p-ddim-int8=a2p,knn,random \
+    -G "a2p.model=$runs/fp32" -G "a2p-int8.model=$runs/int8" -G "a2p-ddim.model=$runs/fp32" \
+    -G "a2p-ddim-int8.model=$runs/int8" -G a2p-ddim.sampler=ddim -G a2p-ddim-int8.sampler=ddim \
+    -G a2p-ddim.steps=10 -G a2p-ddim-int8.steps=10 --out "$runs/compare"
 
-n=$(stage_steps distill 700)
-distill=("a2p" --stage distill --corpus "$corpus" --preset small --seed 0 --no-progress --steps "$n"
-    --set "decay_steps=$n" --set "warmup_steps=$(steps 20)" --set lr=2e-4 --set val_every=$((n / 4 + 1)) --out "$runs/distill"
-    --init "$runs/face" --init "$runs/body")
-if [ "$gpu" = 1 ]; then
-    "$bin/convodrive" train "${distill[@]}" >"$runs/distill.log" 2>&1
-else
-    "$bin/python" -m torch.distributed.run --standalone --nproc_per_node 2 -m convodrive.training "${distill[@]}" >"$runs/distill.log" 2>&1
-fi
-"$bin/convodrive" export "$runs/distill" --out "$model"
-echo "train_a2p: wrote $model (see its MODEL_CARD.md)"
+# The chosen folder replaces the shipped one whole (written beside it, then renamed), with the
+# card's last sections: how it was made, what it scores, what it may be used for.
+"$bin/python" - "$runs" "$model" "$corpus" "$started" "$trained" <<'EOF'
+import json, os, platform, shutil, subprocess, sys, time
+from pathlib import Path
+
+runs, model, corpus, started, trained = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3], *map(int, sys.argv[4:6])
+LIMIT = 30_000_000  # bytes the package ships for a2p (issue 13: at most 30 MB)
+METRIC = "FGD holistic"
+results = (table := json.loads((runs / "compare" / "compare.json").read_text()))["results"]
+costs = {
+    sampler: (results[f"{label}-int8"][METRIC] - results[label][METRIC]) / results[label][METRIC]
+    for sampler, label in (("distilled", "a2p"), ("DDIM 10", "a2p-ddim"))
+}
+chosen = "int8" if max(costs.values()) < 0.05 else "fp32"
+folder_size = lambda p: sum(f.stat().st_size for f in p.iterdir())
+size = folder_size(runs / chosen)
+if size > LIMIT:
+    sys.exit(f"train_a2p: the {chosen} model is {size / 1e6:.1f} MB, more than the {LIMIT / 1e6:.0f} MB the package ships")
+tmp = model.with_name(model.name + ".partial")
+shutil.rmtree(tmp, ignore_errors=True)
+shutil.copytree(runs / chosen, tmp)
+commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+columns = [METRIC, "FD_g body", "FD_g face", "FD_k body", "FD_k face", "Div_sample", "Var body", "Var face", "lip r", "mouth shut"]
+cell = lambda v: "—" if v is None else f"{v:.3g}"
+rows = [f"| {m} | " + " | ".join(cell(r.get(c)) for c in columns) + " |" for m, r in results.items()]
+stages = ("lip", "face", "vq", "guide", "body", "distill")
+steps = ", ".join(f"{s} {json.loads((runs / s / 'run.json').read_text())['train_config']['steps']}" for s in stages)
+env = "".join(f"{k}={v} " for k, v in sorted(os.environ.items()) if k in ("SCALE", "SHIP_ONLY", "SAMPLES", "MAX_CONVERSATIONS") or k.startswith("STEPS_"))
+card = f"""
+## How these weights were made
+
+- command: `{env}scripts/train_a2p.sh {corpus} {runs}` at commit `{commit}`
+  (stages {steps} steps, `small` preset, seed 0)
+- corpus: made by `convodrive corpus make --hours 2 --seed 0` (speech by espeak-ng, motion by convodrive's
+  `procedural` generator); its test split scores the model below
+- wall time: {(trained - started) / 60:.0f} min to train, {(time.time() - started) / 60:.0f} min in all, on
+  {os.cpu_count()} CPU cores ({platform.machine()}), load average at the end {os.getloadavg()[0]:.1f}
+- shipped: the {chosen} export, {size / 1e6:.1f} MB (fp32 {folder_size(runs / 'fp32') / 1e6:.1f} MB, int8
+  {folder_size(runs / 'int8') / 1e6:.1f} MB); int8 (every graph's MatMuls, dynamic) changes {METRIC} by
+  {' and '.join(f'{100 * c:+.1f} % ({s})' for s, c in costs.items())} on the test split; int8 ships only
+  when both are under 5 %
+
+## Test split ({table['conversations']} conversations, {table['samples']} samples each)
+
+`a2p`: the distilled sampler (the default); `a2p-ddim`: the teacher graphs, DDIM 10 steps with
+classifier-free guidance; `-int8`: the int8 export.
+
+| method | {' | '.join(columns)} |
+|---|{'---|' * len(columns)}
+{chr(10).join(rows)}
+
+## Licence
+
+Trained only on data this project made (espeak-ng speech, procedural motion): no motion or audio of
+the audio2photoreal data or any other third-party corpus, so none of their non-commercial terms
+apply. The weights are under the licence of convodrive itself.
+"""
+with open(tmp / "MODEL_CARD.md", "a", encoding="utf-8") as f:
+    f.write(card)
+# MODEL_CARD.md is not among the hashed files of model.json, so appending keeps the folder valid.
+shutil.rmtree(model, ignore_errors=True)
+tmp.rename(model)
+print(f"train_a2p: wrote {model} ({chosen}, {size / 1e6:.1f} MB); card: {model / 'MODEL_CARD.md'}")
+EOF
