@@ -6,20 +6,20 @@ Prints JSON with
   (``paper``, ``small``) and precision (fp32, int8), with DDIM at ``--ddim`` steps (classifier-free
   guidance, both halves one batch) and the distilled sampler, ``--threads`` ONNX Runtime threads.
   Speed does not depend on the weights, so the graphs are exported from fresh networks
-  (``--model DIR`` times a trained folder too). The reference: 0.062x on these 2 cores at DDIM 100
+  (``--model DIR``, repeatable, times trained folders too; ``--presets ""`` times only those). The reference: 0.062x on these 2 cores at DDIM 100
   with guidance; targets: ``paper`` distilled >= 1x, ``small`` distilled >= 5x;
 - ``guide_80_tokens_s``: the guide transformer's time for 80 tokens (20 s of guide poses), in
   torch: each token by re-running the whole prefix and re-encoding its audio (as the reference
   samples), and one cached step a token; and through the ONNX step graph with its cache;
 - ``live``: look-ahead, a window's compute (median and worst) and their sum, the latency (target
   <= 0.5 s), with the distilled sampler;
-- ``long`` (with ``--model``, ``--long-minutes`` of the bundled dialogue looped): the largest frame
+- ``long`` (with ``--model``, the first one, ``--long-minutes`` of the bundled dialogue looped): the largest frame
   change (pose and face) at a window seam against the largest inside windows, and the peak of
   traced memory after the first minute against at the end (constant memory);
 - the machine's load average before and after (it may be shared: quote it).
 
 Usage: .venv/bin/python -m bench.bench_a2p [--presets paper,small] [--ddim 10,25,100] [--threads 2]
-       [--model DIR [--long-minutes 10]]
+       [--model DIR ... [--long-minutes 10]]
 """
 
 from __future__ import annotations
@@ -172,20 +172,23 @@ def main() -> int:
     parser.add_argument("--ddim", default="10,25,100", help="DDIM step counts to time (comma-separated)")
     parser.add_argument("--threads", type=int, default=2, help="ONNX Runtime threads per graph")
     parser.add_argument("--seconds", type=float, default=20.0, help="dialogue length for the real-time factors")
-    parser.add_argument("--model", type=Path, default=None, help="also time this trained model folder")
+    parser.add_argument(
+        "--model", type=Path, action="append", default=[], help="also time this trained model folder (repeatable)"
+    )
     parser.add_argument("--long-minutes", type=float, default=0.0, help="seams and memory of a long run of --model")
     args = parser.parse_args()
     out: dict[str, Any] = {"load_before": [round(x, 2) for x in os.getloadavg()], "cpus": os.cpu_count()}
     out["seconds"], out["threads"] = args.seconds, args.threads
     audio = speech_like(args.seconds)
     ddim = [int(s) for s in args.ddim.split(",") if s]
+    presets = [p for p in args.presets.split(",") if p]
     with tempfile.TemporaryDirectory(prefix="bench_a2p_") as tmp:
         folders: dict[str, Path] = {}
-        for preset in args.presets.split(","):
+        for preset in presets:
             for precision in args.precisions.split(","):
                 folders[f"{preset} {precision}"] = untrained_folder("a2p", preset, precision == "int8", Path(tmp))
-        if args.model is not None:
-            folders["trained " + args.model.name] = args.model
+        for model in args.model:
+            folders[f"trained {model}"] = model
         table: dict[str, dict[str, float]] = {}
         for label, folder in folders.items():
             table[label] = {"distilled": rtf(folder, audio, args.threads)}
@@ -198,12 +201,12 @@ def main() -> int:
                 **guide_torch(preset),
                 "onnx_kv_cache": guide_onnx(folders[f"{preset} fp32"], args.threads),
             }
-            for preset in args.presets.split(",")
+            for preset in presets
             if f"{preset} fp32" in folders
         }
         out["live"] = {label: live_latency(folder, speech_like(20.0, seed=1), 1) for label, folder in folders.items()}
-    if args.model is not None and args.long_minutes > 0:
-        out["long"] = long_run(args.model, args.long_minutes)
+    if args.model and args.long_minutes > 0:
+        out["long"] = long_run(args.model[0], args.long_minutes)
     out["load_after"] = [round(x, 2) for x in os.getloadavg()]
     print(json.dumps(out, indent=2))
     return 0
