@@ -5,18 +5,30 @@ An ordinary pipeline run: the ``replay`` generator plays the clips (take k plays
 shows it. With ``--audio`` the video runs as long as the audio (longer clips are cut, shorter ones
 hold their last frame, and both are warned about); without it, as long as the longest clip, in
 silence. The run report goes beside the video as ``NAME_report.json``.
+
+Its flags are the render backend's options (``RenderOptions``: ``--camera``, ``--resolution``,
+``--labels``...), made from that one declaration; only the file names come from ``--out``.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
 from convodrive import FPS
+from convodrive.backends.render import RenderOptions
 from convodrive.cli.progress import frame_progress
 from convodrive.motion.load import FORMATS
+from convodrive.plugins.options import add_option_arguments, merge_options, option_arguments
 from convodrive.plumbing.errors import UserError
+
+NAMED_BY_OUT = ("filename", "contact_sheet")
+"""The render options ``--out`` sets (the video and, beside it, ``NAME_contact.png``)."""
+RENDER_FLAGS = tuple(f.name for f in dataclasses.fields(RenderOptions) if f.name not in NAMED_BY_OUT)
+"""Every other render option is a flag of this command."""
+PLUGIN = "backend render"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -28,18 +40,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("motion", nargs="+", type=Path, metavar="MOTION", help=f"motion clip(s): {FORMATS}")
     p.add_argument("--audio", type=Path, metavar="WAV", help="audio to mux; sets the video's length")
-    p.add_argument(
-        "--camera", default="upper", choices=("full", "upper", "face"), help="camera preset (default: upper)"
-    )
-    p.add_argument("--resolution", default="512x512", metavar="WxH", help="size of each take (default: 512x512)")
     p.add_argument("--out", type=Path, metavar="FILE", help="output .mp4 (default: next to the first clip)")
-    p.add_argument("--antialias", action="store_true", help="4x multisampling (slower on CPU)")
-    p.add_argument(
-        "--avatar",
-        type=Path,
-        metavar="PATH",
-        help="a .glb/.gltf/.vrm avatar (or a YAML name map) instead of the mannequin",
-    )
+    add_option_arguments(p, RenderOptions, RENDER_FLAGS, show_defaults=True)
     p.set_defaults(func=run)
 
 
@@ -56,6 +58,9 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--out {out}: the video must be an .mp4 file")
     if out.is_dir():
         raise UserError(f"--out {out}: is a folder; give a file name ending in .mp4")
+    named = {"filename": out.name, "contact_sheet": f"{out.stem}_contact.png"}
+    flags = option_arguments(args, RENDER_FLAGS)
+    render_options = merge_options(RenderOptions, [("", flags), ("", named)], plugin=PLUGIN)  # before any work
     duration = None
     if args.audio is None:  # as long as the longest clip
         duration = max(frames_covering(load_motion(p)) for p in args.motion) / FPS
@@ -66,16 +71,7 @@ def run(args: argparse.Namespace) -> int:
         generator="replay",
         generator_options={"motion": [str(p) for p in args.motion]},
         backends=("render",),
-        backend_options={
-            "render": {
-                "camera": args.camera,
-                "resolution": args.resolution,
-                "filename": out.name,
-                "contact_sheet": f"{out.stem}_contact.png",
-                "antialias": args.antialias,
-                "avatar": str(args.avatar) if args.avatar else "",
-            }
-        },
+        backend_options={"render": render_options.as_dict()},
         samples=len(args.motion),
         realtime=False,
         out_dir=out_dir,

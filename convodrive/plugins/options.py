@@ -396,30 +396,46 @@ def _type_name(hint: Any) -> str:
 
 
 # ------------------------------------------------------------------------------------ flags
-def add_option_arguments(parser: argparse.ArgumentParser, cls: type[PluginOptions], names: Sequence[str]) -> None:
+def add_option_arguments(
+    parser: argparse.ArgumentParser,
+    cls: type[PluginOptions],
+    names: Sequence[str],
+    *,
+    show_defaults: bool = False,
+) -> None:
     """Command-line flags (``--latency-ms``) for some of a plugin's options, with the declared help.
-    Their values stay unset unless given, so a profile's values apply; read them with
-    ``option_arguments`` and merge them as the top layer."""
+    Their values stay unset unless given, so a profile's values apply (say the defaults in the help
+    with ``show_defaults`` where nothing else does); read them with ``option_arguments`` and check
+    them as a layer of ``merge_options`` or ``check_options``."""
     infos = {i.name: i for i in describe_options(cls)}
+    hints = typing.get_type_hints(cls)
     for name in names:
         info = infos[name]
-        bounds = info.bounds()
-        text = f"{info.help} ({info.type}{', ' + bounds if bounds else ''})"
+        default = f"; default {info.default_text()}" if show_defaults else ""
+        text = f"{info.help} ({info.kind()}{default})"
         flag = "--" + name.replace("_", "-")
         if info.type == "bool":
             parser.add_argument(flag, dest=name, default=None, action=argparse.BooleanOptionalAction, help=text)
         else:
-            parser.add_argument(flag, dest=name, default=None, metavar=name.upper(), help=text)
+            parser.add_argument(
+                flag, dest=name, default=None, metavar=name.upper(), type=_flag_reader(hints[name]), help=text
+            )
+
+
+def _flag_reader(hint: Any) -> Any:
+    """A flag's text as its option takes it: verbatim for text and paths (``--labels no`` is the
+    caption "no", not false), read as YAML otherwise (numbers, booleans, lists)."""
+    kinds = (
+        set(typing.get_args(hint)) - {type(None)}
+        if typing.get_origin(hint) in (typing.Union, types.UnionType)
+        else {hint}
+    )
+    return str if kinds in ({str}, {Path}) else parse_scalar
 
 
 def option_arguments(args: argparse.Namespace, names: Sequence[str]) -> dict[str, Any]:
     """The flags of ``add_option_arguments`` that were given, as a layer for ``merge_options``."""
-    out = {}
-    for name in names:
-        value = getattr(args, name, None)
-        if value is not None:
-            out[name] = parse_scalar(value) if isinstance(value, str) else value
-    return out
+    return {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
 
 
 # ------------------------------------------------------------------------------------ shared checks

@@ -89,3 +89,26 @@ def test_a_clip_cut_by_shorter_audio_is_warned_about(tmp_path: Path, capsys: pyt
     assert "warning: " + f"{bvh}: the clip lasts 2.00 s but the audio 0.50 s: its last 1.50 s are not played" in out
     assert f"warning: {bvh}: plays no face (every blendshape channel is 0)" in out
     assert len(frames_of(tmp_path / "long.mp4")) == 15
+
+
+def test_every_render_option_but_the_file_names_is_a_flag(tmp_path: Path) -> None:
+    """The flags are made from ``RenderOptions``: each option is one (``--out`` names the files),
+    and a value reaches the backend as given: ``--labels no`` draws the caption "no"."""
+    import dataclasses
+
+    from convodrive.backends.render import RenderOptions
+    from convodrive.cli.main import build_parser
+
+    render = build_parser()._subparsers._group_actions[0].choices["render"]  # type: ignore[union-attr]
+    flags = {s for a in render._actions for s in a.option_strings}
+    for field in dataclasses.fields(RenderOptions):
+        flag = "--" + field.name.replace("_", "-")
+        assert (flag in flags) == (field.name not in ("filename", "contact_sheet")), flag
+    clip = write_bvh(waving_clip(3, 30), tmp_path / "c.bvh")
+    plain, captioned = tmp_path / "plain.mp4", tmp_path / "captioned.mp4"
+    assert main(["render", str(clip), "--resolution", "96x96", "--out", str(plain)]) == 0
+    assert main(["render", str(clip), "--resolution", "96x96", "--labels", "no", "--out", str(captioned)]) == 0
+    a, b = frames_of(plain)[0].astype(int), frames_of(captioned)[0].astype(int)
+    corner = np.abs(a[:24, :48] - b[:24, :48]).mean()
+    rest = np.abs(a[48:] - b[48:]).mean()
+    assert corner > 5 * max(rest, 0.1), (corner, rest)  # a caption in the top-left corner, nothing else

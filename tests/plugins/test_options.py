@@ -161,6 +161,21 @@ def test_flags_come_from_the_declaration() -> None:
         )
 
 
+def test_a_text_flag_keeps_its_text() -> None:
+    """``--port no`` is the text "no" (YAML would read false) and ``1:30`` stays itself (YAML 1.1
+    reads 90); flags of other types are still read as YAML."""
+    parser = argparse.ArgumentParser()
+    add_option_arguments(parser, Head, ["port", "model", "gains"], show_defaults=True)
+    for text in ("no", "1:30", "0x10", "null"):
+        given = option_arguments(parser.parse_args(["--port", text]), ["port"])
+        assert merge_options(Head, [("", given)], plugin="x").port == text
+    args = parser.parse_args(["--model", "yes", "--gains", "[1, 2.5]"])
+    options = merge_options(Head, [("", option_arguments(args, ["model", "gains"]))], plugin="x")
+    assert options.model == Path("yes") and options.gains == [1.0, 2.5]
+    assert "(float, from 0.5 to 100; default 10.0)" not in parser.format_help()  # only the flags asked for
+    assert '(text; default "")' in parser.format_help()
+
+
 # -------------------------------------------------------------------------------- every built-in
 def _builtin_plugins() -> list[tuple[str, type]]:
     found = []

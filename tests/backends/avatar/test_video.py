@@ -156,11 +156,23 @@ def test_user_errors_are_one_line(tmp_path, capsys, monkeypatch, args, needle):
     assert err.count("\n") == 1 and needle in err and "Traceback" not in err
 
 
-def test_bad_camera_is_rejected_by_the_parser(capsys):
-    with pytest.raises(SystemExit) as exc:
-        main(["render", "x.npz", "--camera", "side"])
-    assert exc.value.code == 2
-    assert capsys.readouterr().err.count("\n") == 1
+@pytest.mark.parametrize(
+    "flags, needle",
+    [
+        (["--camera", "side"], "option 'camera' must be one of full, upper, face, got 'side'"),
+        (["--camera", "fce"], "(did you mean 'face'?)"),
+        (["--resolution", "511x512"], "must be even"),
+        (["--labels", "x" * 5000], "option 'labels' must be at most 4096 characters"),
+    ],
+)
+def test_bad_flag_values_are_one_line_naming_the_option(tmp_path, capsys, flags, needle):
+    """The render flags are the render backend's options: checked before any work (the clip
+    need not even exist), one line naming the backend and the option."""
+    rc = main(["render", str(tmp_path / "x.npz"), *flags])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert err.count("\n") == 1 and err.startswith("convodrive: error: backend render: ") and needle in err
+    assert not list(tmp_path.iterdir())
 
 
 def test_backend_options_are_checked():
