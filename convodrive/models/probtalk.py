@@ -121,26 +121,28 @@ class ChannelNorm(nn.Module):
         return self.norm(x.transpose(1, 2)).transpose(1, 2)
 
 
-def conv_block(cin: int, cout: int, kind: str = "same", kernel: int = 3) -> nn.Sequential:
-    """Conv, channel norm, LeakyReLU(0.2). ``down``: stride 2 (kernel 4); ``up``: transposed, stride 2."""
+def conv_block(
+    cin: int, cout: int, kind: str = "same", kernel: int = 3, norm: Callable[[int], nn.Module] = ChannelNorm
+) -> nn.Sequential:
+    """Conv, norm, LeakyReLU(0.2). ``down``: stride 2 (kernel 4); ``up``: transposed, stride 2."""
     if kind == "down":
         conv: nn.Module = nn.Conv1d(cin, cout, 4, stride=2, padding=1)
     elif kind == "up":
         conv = nn.ConvTranspose1d(cin, cout, 4, stride=2, padding=1)
     else:
         conv = nn.Conv1d(cin, cout, kernel, padding=kernel // 2)
-    return nn.Sequential(conv, ChannelNorm(cout), nn.LeakyReLU(0.2))
+    return nn.Sequential(conv, norm(cout), nn.LeakyReLU(0.2))
 
 
 class ResidualStack(nn.Module):
     """``layers`` conv blocks and a conv, added to the input (the reference's Res_CNR_Stack)."""
 
-    def __init__(self, channels: int, layers: int) -> None:
+    def __init__(self, channels: int, layers: int, norm: Callable[[int], nn.Module] = ChannelNorm) -> None:
         super().__init__()
         self.body = nn.Sequential(
-            *[conv_block(channels, channels) for _ in range(layers)],
+            *[conv_block(channels, channels, norm=norm) for _ in range(layers)],
             nn.Conv1d(channels, channels, 3, padding=1),
-            ChannelNorm(channels),
+            norm(channels),
         )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -172,15 +174,22 @@ def sinusoid(positions: torch.Tensor, dim: int) -> torch.Tensor:
 
 
 # --------------------------------------------------------------------------------------- PQ-VAE
+VQ_NORM = nn.BatchNorm1d
+"""The PQ-VAE's norm, the reference's batch norm: a fixed scale and shift once trained, so windows
+decode alike at any length. Not ChannelNorm: normalising each frame over its channels (and
+GroupNorm over a whole window) left the autoencoder at the mean motion (validation L1 0.43 after
+300 steps, with or without quantisation, where batch norm or none reached 0.33-0.36 and still fell)."""
+
+
 class MotionEncoder(nn.Module):
     """(B, T, D) motion -> (B, G*code_dim, T/8) latent."""
 
     def __init__(self, dim: int, config: ProbTalkConfig) -> None:
         super().__init__()
-        ch = config.vq_channels
-        layers: list[nn.Module] = [conv_block(dim, ch[0]), ResidualStack(ch[0], config.vq_layers)]
+        ch, n = config.vq_channels, config.vq_layers
+        layers: list[nn.Module] = [conv_block(dim, ch[0], norm=VQ_NORM), ResidualStack(ch[0], n, VQ_NORM)]
         for cin, cout in zip(ch[:-1], ch[1:]):
-            layers += [conv_block(cin, cout, "down"), ResidualStack(cout, config.vq_layers)]
+            layers += [conv_block(cin, cout, "down", norm=VQ_NORM), ResidualStack(cout, n, VQ_NORM)]
         layers.append(nn.Conv1d(ch[-1], config.groups * config.code_dim, 1))
         self.net = nn.Sequential(*layers)
 
@@ -193,11 +202,11 @@ class MotionDecoder(nn.Module):
 
     def __init__(self, dim: int, config: ProbTalkConfig) -> None:
         super().__init__()
-        ch = config.vq_channels[::-1]
+        ch, n = config.vq_channels[::-1], config.vq_layers
         layers: list[nn.Module] = [nn.Conv1d(config.groups * config.code_dim, ch[0], 1)]
         for cin, cout in zip(ch[:-1], ch[1:]):
-            layers += [ResidualStack(cin, config.vq_layers), conv_block(cin, cout, "up")]
-        layers += [ResidualStack(ch[-1], config.vq_layers), nn.Conv1d(ch[-1], dim, 1)]
+            layers += [ResidualStack(cin, n, VQ_NORM), conv_block(cin, cout, "up", norm=VQ_NORM)]
+        layers += [ResidualStack(ch[-1], n, VQ_NORM), nn.Conv1d(ch[-1], dim, 1)]
         self.net = nn.Sequential(*layers)
 
     def forward(self, latent: torch.Tensor) -> torch.Tensor:
