@@ -6,7 +6,8 @@
 #
 #   scripts/train_probtalk.sh CORPUS RUNS && scripts/ablate_probtalk.sh [CORPUS] [RUNS]
 #
-# RUNS is train_probtalk.sh's run folder (its vq stage and fp32 export are reused). Writes
+# RUNS is train_probtalk.sh's run folder (its vq stage and fp32 export are reused; the variants can
+# train while train_probtalk.sh is still in its refiner stage). Writes
 # RUNS/ablation/compare.{md,json,png}. A second run resumes each stage where it stopped.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -15,13 +16,15 @@ runs=${2:-runs/probtalk-small}
 threads=${THREADS:-1}
 samples=${SAMPLES:-4}
 bin=.venv/bin
-[ -d "$runs/vq" ] && [ -d "$runs/fp32" ] || { echo "ablate_probtalk: $runs holds no trained model: run scripts/train_probtalk.sh first" >&2; exit 2; }
+need() { [ -e "$runs/$1" ] || { echo "ablate_probtalk: $runs/$1 is missing: run scripts/train_probtalk.sh first" >&2; exit 2; }; }
+need vq/run.json
 steps() { .venv/bin/python -c "import json,sys; print(json.load(open(sys.argv[1]))['train_config']['steps'])" "$runs/$1/run.json"; }
 
 # A variant: the shipped model's predictor and refiner steps, one setting changed.
 variant() {
     local name=$1 setting=$2 stage from=$runs/vq n
     for stage in predictor refiner; do
+        need "$stage/run.json"
         n=$(steps "$stage")
         "$bin/convodrive" train probtalk --corpus "$corpus" --preset small --seed 0 --threads "$threads" \
             --stage "$stage" --steps "$n" --set "decay_steps=$((n - 20))" --set "$setting" \
@@ -31,8 +34,15 @@ variant() {
     rm -rf "$runs/ablation-$name/fp32"
     "$bin/convodrive" export "$from" --out "$runs/ablation-$name/fp32"
 }
-variant 1d position=1d
-variant self-trained dyadic=false
+# The two variants train side by side, one thread each (the shipped model's predictor and refiner
+# steps are read from its runs, so they must have started).
+variant 1d position=1d > "$runs/ablation-1d.log" 2>&1 &
+one=$!
+variant self-trained dyadic=false > "$runs/ablation-self-trained.log" 2>&1 &
+two=$!
+wait $one || { echo "ablate_probtalk: the 1d variant failed: $runs/ablation-1d.log" >&2; exit 1; }
+wait $two || { echo "ablate_probtalk: the self-trained variant failed: $runs/ablation-self-trained.log" >&2; exit 1; }
+need fp32/model.json
 
 fgd=${FGD_MODEL:-convodrive/eval/fgd_model}
 model=$runs/fp32
