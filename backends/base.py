@@ -74,6 +74,10 @@ class Backend(abc.ABC):
     but its options, spec, session and frames (all picklable); whatever it holds (a GL context, a
     serial port) it opens and closes there; its results are files and the JSON of ``health`` and
     ``report``."""
+    light: ClassVar[bool] = False
+    """True when ``send`` does little work (well under a millisecond of CPU, no waiting on a
+    device): in a real-time run its worker then shares the clock's real-time scheduling, below the
+    clock (``convodrive.scheduler.priority.HelperPriority``)."""
     default_profile: ClassVar[str | None] = None
     """A robot profile under config/robots used when the run names none; None for canonical-only."""
     requires: ClassVar[tuple[str, ...]] = ()

@@ -214,6 +214,8 @@ class DynamixelBackend(ServoBackend):
                 self._add_fault("lost_replies", name, f"{h.timeouts} status read(s) timed out")
             if h.corrupt:
                 self._add_fault("bad_crc", name, f"{h.corrupt} status packet(s) failed their checksum")
+            if h.short:
+                self._add_fault("short_replies", name, f"{h.short} status packet(s) shorter than the data asked for")
         recovered = sorted(lost_before & set(data))
         if recovered:
             self._event("servo_recovered", ",".join(recovered), "answering again; re-initialised", fault=False)

@@ -47,6 +47,7 @@ class RecordBackend(Backend):
     name = "record"
     description = "Record the motion (.npz, BVH, Live Link Face CSV) and target frames to files"
     realtime = False
+    light = True  # a frame is a few rows appended to spool files
     Options = RecordOptions
     options: RecordOptions
 

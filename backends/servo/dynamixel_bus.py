@@ -5,6 +5,13 @@ tables, goal positions for every servo in one SYNC_WRITE, SYNC_READ replies coll
 (one silent servo does not blank the others), retries with back-off on lost status packets, and
 a health record per servo. A port-level failure (adapter unplugged) raises ``PortLost``.
 
+The SDK trusts a status packet with a valid checksum and takes the data it asked for from it, so
+a packet shorter than the request (a late reply to an earlier, shorter read, which a loaded host
+makes likely) reads its checksum bytes as data, or raises IndexError deep inside it. Here every
+reply is measured against its request (``CheckedPacketHandler``), and a short one is a
+``ShortReply``: one bad exchange of one servo, counted and retried like a lost or corrupt one,
+never an error of the run.
+
 One bus object must be used by one thread at a time (the SDK's port has a non-reentrant busy
 flag); ``lock`` serialises callers.
 """
@@ -47,6 +54,8 @@ class ServoHealth:
     last_seen: float | None = None
     timeouts: int = 0
     corrupt: int = 0
+    short: int = 0
+    """Status packets shorter than the data asked for."""
     retries: int = 0
     refused: int = 0
     consecutive_failures: int = 0
@@ -72,6 +81,7 @@ class ServoHealth:
             "last_seen_s": None if self.last_seen is None else round(now - self.last_seen, 3),
             "timeouts": self.timeouts,
             "corrupt": self.corrupt,
+            "short": self.short,
             "retries": self.retries,
             "refused": self.refused,
             "lost_events": self.lost_events,
@@ -82,6 +92,31 @@ class ServoHealth:
             "temperature_c": self.temperature,
             "voltage_v": self.voltage,
         }
+
+
+class ShortReply(Exception):
+    """A status packet with a valid checksum but less data than the request asked for."""
+
+
+STATUS_OVERHEAD = 11
+"""Bytes of a status packet around its data: header 4, id, length 2, instruction, error, CRC 2."""
+PING_DATA = 3  # model number 2, firmware 1
+
+
+class CheckedPacketHandler(sdk.Protocol2PacketHandler):  # type: ignore[misc]
+    """The SDK's Protocol 2.0 handler, refusing a status packet with less data than was asked for."""
+
+    def txRxPacket(self, port, txpacket):  # type: ignore[no-untyped-def]  # noqa: N802 (SDK name)
+        rxpacket, result, error = super().txRxPacket(port, txpacket)
+        if result == sdk.COMM_SUCCESS and rxpacket is not None:
+            inst = txpacket[sdk.PKT_INSTRUCTION]
+            if inst == sdk.INST_READ:
+                wanted = sdk.DXL_MAKEWORD(txpacket[sdk.PKT_PARAMETER0 + 2], txpacket[sdk.PKT_PARAMETER0 + 3])
+            else:
+                wanted = PING_DATA if inst == sdk.INST_PING else 0
+            if len(rxpacket) < STATUS_OVERHEAD + wanted:
+                raise ShortReply(f"status packet of {len(rxpacket)} bytes, {STATUS_OVERHEAD + wanted} expected")
+        return rxpacket, result, error
 
 
 class LatencyPort(sdk.PortHandler):
@@ -119,7 +154,7 @@ class DynamixelBus:
         self.backoff_s = backoff_s
         self.health = {m.name: ServoHealth(m.name, m.id) for m in motors}
         self.lock = threading.RLock()
-        self.packets = sdk.PacketHandler(2.0)
+        self.packets = CheckedPacketHandler()
         self.port: LatencyPort | None = None
         self._alert: set[str] = set()
         self.group_timeouts = 0
@@ -158,30 +193,44 @@ class DynamixelBus:
         return self.port
 
     def _guard(self, fn, *args):  # type: ignore[no-untyped-def]
-        """Run one SDK call; turn serial-level failures into PortLost and drop the dead port."""
+        """Run one SDK call; turn serial-level failures into PortLost and drop the dead port, and
+        the SDK indexing past a short status packet into ShortReply."""
         try:
             return fn(*args)
         except (serial.SerialException, OSError, termios.error, TypeError) as exc:
             # termios.error: flushing a hung-up tty; TypeError: pyserial on a closed fd.
             self.disconnect()
             raise PortLost(f"{self.port_name}: {exc}") from None
+        except (IndexError, ShortReply):  # IndexError: the SDK indexed past a short packet (group reads)
+            if self.port is not None:
+                self.port.is_using = False
+            raise ShortReply(f"{self.port_name}: a status packet was shorter than the data asked for") from None
 
     # ------------------------------------------------------------- single servo
     def ping(self, servo_id: int) -> tuple[int, int] | None:
         """(model number, firmware) or None when nothing answers."""
         with self.lock:
             port = self._port()
-            number, result, _ = self._guard(self.packets.ping, port, servo_id)
-            if result != sdk.COMM_SUCCESS:
+            try:
+                number, result, _ = self._guard(self.packets.ping, port, servo_id)
+                if result != sdk.COMM_SUCCESS:
+                    return None
+                firmware, result, _ = self._guard(self.packets.read1ByteTxRx, port, servo_id, 6)
+            except ShortReply:
                 return None
-            firmware, result, _ = self._guard(self.packets.read1ByteTxRx, port, servo_id, 6)
             return number, firmware if result == sdk.COMM_SUCCESS else -1
 
     def scan(self) -> dict[int, tuple[int, int]]:
         """Every servo on the bus by broadcast ping: id -> (model number, firmware)."""
         with self.lock:
-            found, _ = self._guard(self.packets.broadcastPing, self._port())
-            return {int(i): (int(v[0]), int(v[1])) for i, v in found.items()}
+            for attempt in range(self.retries + 1):
+                try:
+                    found, _ = self._guard(self.packets.broadcastPing, self._port())
+                    return {int(i): (int(v[0]), int(v[1])) for i, v in found.items()}
+                except ShortReply:
+                    if attempt == self.retries:
+                        raise PortLost(f"{self.port_name}: every broadcast ping had a malformed reply") from None
+            return {}
 
     def read(self, register: str, name: str) -> int | None:
         motor = self.motors[name]
@@ -210,10 +259,9 @@ class DynamixelBus:
                     time.sleep(0.001 * 2 ** (attempt - 1))
                 try:
                     value, result, error = self._guard(call, self._port())
-                except IndexError:
-                    # A late reply to an earlier request of this servo, shorter than the one asked
-                    # for (the SDK indexes past it): corrupt; the retry's port flush drops it.
-                    value, result, error = None, sdk.COMM_RX_CORRUPT, 0
+                except ShortReply:  # e.g. a late reply to an earlier, shorter request of this servo
+                    health.short += 1
+                    continue
                 if result == sdk.COMM_SUCCESS:
                     self._seen(health, error)
                     if error & 0x7F:
@@ -276,7 +324,9 @@ class DynamixelBus:
             while pending:
                 packet, result = self._guard(self.packets.rxPacket, port, False)
                 sid = packet[PKT_ID] if len(packet) > PKT_PARAMETER0 else None
-                if result == sdk.COMM_SUCCESS and sid in pending:
+                if result == sdk.COMM_SUCCESS and sid in pending and len(packet) < 11 + length:
+                    self.health[by_id[sid]].short += 1  # too little data: that servo is asked again alone
+                elif result == sdk.COMM_SUCCESS and sid in pending:
                     pending.discard(sid)
                     self._seen(self.health[by_id[sid]], packet[PKT_ERROR])
                     got[by_id[sid]] = list(packet[PKT_PARAMETER0 : PKT_PARAMETER0 + length])

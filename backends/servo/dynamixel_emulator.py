@@ -6,12 +6,14 @@ toward Goal_Position at the profile velocity (or the velocity limit when the pro
 torque is on. Replies are delayed by their time on the wire at the emulated baud rate.
 
 Faults are injected on demand, through the API or on the command line (``parse_fault``): dropped
-or CRC-corrupted replies, hardware-error bits (which switch torque off as the Shutdown register
+or CRC-corrupted replies, short replies (a well-formed status packet with one data byte too few,
+what a reply to an earlier, shorter request looks like when it arrives late), hardware-error bits (which switch torque off as the Shutdown register
 says, like a real servo), a servo that vanishes and comes back, a port that disappears.
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import dataclasses
 import math
@@ -195,17 +197,24 @@ class DynamixelEmulator(PtyDevice):
             "replies": 0,
             "dropped": 0,
             "corrupted": 0,
+            "shortened": 0,
             "crc_errors_in": 0,
             "refused_goals": 0,
         }
+        self.requests: collections.Counter[tuple[int, int]] = collections.Counter()
+        """Requests each servo was asked to answer, by (servo id, instruction): tests wait on these."""
+        self.unanswered: collections.Counter[int] = collections.Counter()
+        """Requests to a servo that had vanished, by servo id."""
         self._lock = threading.RLock()
         self._buffer = bytearray()
         self._rng = random.Random(seed)
         self._drop: dict[int | None, int] = {}
         self._corrupt: dict[int | None, int] = {}
         self._late: dict[int | None, list[float]] = {}
+        self._short: dict[int | None, int] = {}
         self.drop_rate = 0.0
         self.corrupt_rate = 0.0
+        self.short_rate = 0.0
         self._server = PtyServer(self._on_bytes, link=link, name="dynamixel-emulator")
         self._on_torque = on_torque
         self._torque = {i: s.torque for i, s in self.servos.items()}
@@ -233,6 +242,11 @@ class DynamixelEmulator(PtyDevice):
         reply arrives while it waits for the answer to its next request (a stale reply)."""
         with self._lock:
             self._late.setdefault(servo_id, []).extend([seconds] * count)
+
+    def short_replies(self, count: int = 1, servo_id: int | None = None) -> None:
+        """Cut the last data byte off the next ``count`` replies that carry data (CRC kept valid)."""
+        with self._lock:
+            self._short[servo_id] = self._short.get(servo_id, 0) + count
 
     def hardware_error(self, servo_id: int, fault: str) -> None:
         with self._lock:
@@ -350,7 +364,21 @@ class DynamixelEmulator(PtyDevice):
         if corrupt:
             self.counters["corrupted"] += 1
             return raw[:-2] + bytes([raw[-2] ^ 0x5A, raw[-1]])
-        return raw
+        return self._shorten(servo_id, raw)
+
+    def _shorten(self, servo_id: int, raw: bytes) -> bytes:
+        body = dp.unstuff(raw[7:-2])  # STATUS, error, data
+        if len(body) <= 2:  # no data to cut
+            return raw
+        short = self.short_rate and self._rng.random() < self.short_rate
+        for key in (servo_id, None):
+            if not short and self._short.get(key, 0) > 0:
+                self._short[key] -= 1
+                short = True
+        if not short:
+            return raw
+        self.counters["shortened"] += 1
+        return dp.status(raw[4], body[1], body[2:-1])
 
     def _status(self, servo: EmulatedServo, error: int, params: bytes = b"") -> tuple[int, bytes]:
         if servo.hardware_error:
@@ -368,6 +396,7 @@ class DynamixelEmulator(PtyDevice):
         return inst == dp.PING or level >= 2 or (level == 1 and inst in (dp.READ, dp.SYNC_READ, dp.BULK_READ))
 
     def _handle(self, p: dp.Packet) -> list[tuple[int, bytes]]:
+        self._count_request(p)
         targets = self._targets(p.servo_id)
         unicast = p.servo_id != dp.BROADCAST_ID
         if not p.crc_ok:
@@ -409,6 +438,21 @@ class DynamixelEmulator(PtyDevice):
                 if self._answers(params[k])
             ]
         return [self._status(s, dp.ERR_INSTRUCTION) for s in targets if unicast]
+
+    def _count_request(self, p: dp.Packet) -> None:
+        if p.inst == dp.SYNC_READ and len(p.params) >= 4:
+            asked = list(p.params[4:])
+        elif p.inst == dp.BULK_READ:
+            asked = [p.params[k] for k in range(0, len(p.params) - 4, 5)]
+        elif p.servo_id != dp.BROADCAST_ID and p.inst not in (dp.SYNC_WRITE, dp.BULK_WRITE):
+            asked = [p.servo_id]
+        else:
+            return
+        for servo_id in asked:
+            self.requests[(servo_id, p.inst)] += 1
+            servo = self.servos.get(servo_id)
+            if servo is not None and not servo.alive:
+                self.unanswered[servo_id] += 1
 
     def _answers(self, servo_id: int) -> bool:
         servo = self.servos.get(servo_id)
@@ -465,13 +509,15 @@ def _u16(data: bytes, at: int) -> int:
 
 # ----------------------------------------------------------------- fault schedules (CLI)
 SERVO_FAULTS = ("overload", "overheating", "input_voltage", "vanish")
-FAULT_KINDS = ("drop", "corrupt", *SERVO_FAULTS, "port")
+RATE_FAULTS = ("drop", "corrupt", "short")
+FAULT_KINDS = (*RATE_FAULTS, *SERVO_FAULTS, "port")
 MAX_FAULT_TIME = 86_400.0
 
 
 @dataclasses.dataclass(frozen=True)
 class Fault:
-    """``KIND[:ARG][@AT][+FOR]``: e.g. ``drop:0.05`` (5 % of replies), ``overload:3@2``
+    """``KIND[:ARG][@AT][+FOR]``: e.g. ``drop:0.05`` (5 % of replies), ``short:0.1`` (10 % of
+    replies one data byte short), ``overload:3@2``
     (servo 3 overloads 2 s in), ``vanish:4@1+2`` (servo 4 gone from 1 s to 3 s), ``port@5+1``."""
 
     kind: str
@@ -494,6 +540,8 @@ class Fault:
             emu.drop_rate = self.arg if self.arg is not None else 0.05
         elif self.kind == "corrupt":
             emu.corrupt_rate = self.arg if self.arg is not None else 0.05
+        elif self.kind == "short":
+            emu.short_rate = self.arg if self.arg is not None else 0.05
         elif self.kind == "vanish":
             emu.vanish(self.servo_id, self.duration)
         elif self.kind == "port":
@@ -525,7 +573,7 @@ def parse_fault(text: str) -> Fault:
         raise UserError(
             f"--fault {clip_value(text)}: unknown kind {clip_value(fault.kind)} (known: {', '.join(FAULT_KINDS)})"
         )
-    if fault.kind in ("drop", "corrupt") and fault.arg is not None and not 0 <= fault.arg <= 1:
+    if fault.kind in RATE_FAULTS and fault.arg is not None and not 0 <= fault.arg <= 1:
         raise UserError(f"--fault {clip_value(text)}: {fault.kind} takes a rate from 0 to 1")
     if fault.kind in SERVO_FAULTS and not float(fault.arg or 1).is_integer():
         raise UserError(f"--fault {clip_value(text)}: {fault.kind} takes a servo id, e.g. {fault.kind}:3")

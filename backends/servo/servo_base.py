@@ -32,7 +32,7 @@ from convodrive.backends.servo.safety import Ease, RawMap, Refused, SafetyGuard,
 from convodrive.backends.servo.servo_options import ServoOptions
 from convodrive.motion.targets import TargetFrame, TargetSpec
 from convodrive.plugins.options import PluginOptions
-from convodrive.plumbing.errors import UserError
+from convodrive.plumbing.errors import UserError, error_line
 
 log = logging.getLogger(__name__)
 _LOG_REPEAT_S = 5.0
@@ -267,6 +267,9 @@ class ServoBackend(Backend):
             except PortLost as exc:
                 with self._lock:
                     self._port_lost(str(exc))
+                continue
+            except Exception as exc:  # a driver's surprise must not end the watchdog with this thread
+                self._event("poll_error", None, error_line(exc))
                 continue
             self._read_ms.append((time.perf_counter() - t0) * 1e3)
 

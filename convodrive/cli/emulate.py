@@ -41,7 +41,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="KIND[:ARG][@T][+D]",
-        help="drop:RATE, corrupt:RATE, overload:ID, overheating:ID, input_voltage:ID, vanish:ID, port",
+        help="drop:RATE, corrupt:RATE, short:RATE, overload:ID, overheating:ID, input_voltage:ID, vanish:ID, port",
     )
     dxl.set_defaults(func=run_dynamixel)
     mae = kinds.add_parser("maestro", help="Pololu Maestro servo controller")

@@ -83,7 +83,7 @@ class Scheduler:
         self.on_sent = on_sent
         self.on_drain = on_drain
         self.start_delay = start_delay
-        self._producer = Producer(source, self._target_frames, buffer_frames)
+        self._producer = Producer(source, self._target_frames, buffer_frames, paced=clock.paced)
         self._stop = threading.Event()
         self._interrupted = False
         self._hurried = False

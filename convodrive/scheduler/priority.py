@@ -3,13 +3,25 @@
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import sys
+import threading
+import time
 from collections.abc import Iterator
+
+log = logging.getLogger(__name__)
 
 CLOCK_FIFO_PRIORITY = 10
 """The clock thread's real-time priority when it may have one (1..99; low: it only needs to beat
 ordinary processes, not the kernel's own real-time threads)."""
+HELPER_FIFO_PRIORITY = CLOCK_FIFO_PRIORITY - 1
+"""The producer's and light workers' real-time priority: above every ordinary process, below the
+clock, so the clock still preempts them when it wakes."""
+
+_FIFO = getattr(os, "SCHED_FIFO", 1) | getattr(os, "SCHED_RESET_ON_FORK", 0)
+"""Real-time, and not inherited: a thread or process these threads start (an ONNX Runtime pool, an
+ffmpeg decoder) gets ordinary scheduling."""
 
 
 @contextlib.contextmanager
@@ -66,7 +78,7 @@ def clock_thread_priority(paced: bool) -> Iterator[str | None]:
     try:
         old_policy = os.sched_getscheduler(0)
         old_param = os.sched_getparam(0)
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(CLOCK_FIFO_PRIORITY))
+        os.sched_setscheduler(0, _FIFO, os.sched_param(CLOCK_FIFO_PRIORITY))
     except (PermissionError, OSError):
         yield None
         return
@@ -77,3 +89,79 @@ def clock_thread_priority(paced: bool) -> Iterator[str | None]:
             os.sched_setscheduler(0, old_policy, old_param)
         except OSError:
             pass
+
+
+class HelperPriority:
+    """SCHED_FIFO just below the clock for a thread of the clock's process with little work a frame.
+
+    The clock thread wakes on time under SCHED_FIFO, but then needs the interpreter lock. Measured
+    on a loaded 2-core machine, the late wake-ups (8 to 46 ms) were the clock waiting for the lock
+    held by the producer or a worker that the OS had preempted to run other processes, 20 to 200 ms
+    on the run queue while holding it. A thread here at real-time priority is never preempted by an
+    ordinary process, so whatever it holds, it lets go within the switch interval.
+
+    Real-time priority can starve the machine, so it is given only to bounded work (the producer,
+    which never runs more than its buffer ahead, and workers whose ``send`` is light) and only while
+    that work stays small: a thread busy for more than ``MAX_SHARE`` of a ``WINDOW_S`` window (a
+    generator slower than real time, a backend slower than it said) goes back to ordinary
+    scheduling for the rest of the run. Use it as a context manager in the thread itself and report
+    work with ``busy``.
+    """
+
+    MAX_SHARE = 0.5
+    WINDOW_S = 1.0
+
+    def __init__(self, paced: bool, who: str) -> None:
+        self.paced = paced
+        self.who = who
+        self.active = False
+        self.demoted = False
+        self._old: tuple[int, os.sched_param] | None = None
+        self._busy = 0.0
+        self._window_start = 0.0
+
+    def __enter__(self) -> HelperPriority:
+        if not self.paced or not hasattr(os, "sched_setscheduler") or os.environ.get("CONVODRIVE_NO_RENICE"):
+            return self
+        try:
+            self._old = (os.sched_getscheduler(0), os.sched_getparam(0))
+            os.sched_setscheduler(0, _FIFO, os.sched_param(HELPER_FIFO_PRIORITY))
+        except (PermissionError, OSError):
+            self._old = None
+            return self
+        self.active = True
+        self._window_start = time.monotonic()
+        return self
+
+    def busy(self, seconds: float) -> None:
+        """Count ``seconds`` of this thread's work; leave real-time priority if it is too much."""
+        if not self.active:
+            return
+        self._busy += seconds
+        now = time.monotonic()
+        window = now - self._window_start
+        if window < self.WINDOW_S:
+            return
+        share = self._busy / window
+        self._busy, self._window_start = 0.0, now
+        if share > self.MAX_SHARE:
+            self._restore()
+            self.demoted = True
+            log.info(
+                "%s: busy %.0f %% of the time, too much for real-time priority; back to ordinary "
+                "scheduling (thread %s)",
+                self.who,
+                100 * share,
+                threading.current_thread().name,
+            )
+
+    def __exit__(self, *exc: object) -> None:
+        self._restore()
+
+    def _restore(self) -> None:
+        if self.active and self._old is not None:
+            try:
+                os.sched_setscheduler(0, self._old[0], self._old[1])
+            except OSError:
+                pass
+        self.active = False

@@ -49,6 +49,8 @@ CLOSE_TIMEOUT_S = 300.0
 class ProcessBackend(Backend):
     """Runs ``inner`` (made, validated, not opened) in a child process; see the module docstring."""
 
+    light = True  # this side only pickles a frame and waits on the pipe
+
     def __init__(self, inner: Backend, *, nice: int | None = None) -> None:
         super().__init__(inner.options)
         self.name = inner.name  # type: ignore[misc]  # instances take the inner backend's identity

@@ -14,6 +14,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 from convodrive.motion.clip import MotionFrame
+from convodrive.scheduler.priority import HelperPriority
 from convodrive.scheduler.slots import END
 
 FrameSource = Iterator[tuple[MotionFrame, ...]]
@@ -26,7 +27,7 @@ Prepare = Callable[[int, tuple[MotionFrame, ...]], Any]
 class Producer(threading.Thread):
     """Pulls frames from the generator, prepares them, and fills a bounded buffer; times both."""
 
-    def __init__(self, source: FrameSource, prepare: Prepare, buffer_frames: int) -> None:
+    def __init__(self, source: FrameSource, prepare: Prepare, buffer_frames: int, paced: bool = False) -> None:
         super().__init__(name="generator", daemon=True)
         self.source = source
         self.prepare = prepare
@@ -35,27 +36,37 @@ class Producer(threading.Thread):
         self.prepare_seconds = 0.0
         self.error: BaseException | None = None
         self.stop_event = threading.Event()
+        self.priority = HelperPriority(paced, "generator")
+        """In a paced run, real-time scheduling below the clock while the generator keeps up: this
+        thread holds the interpreter lock more than any other of the clock's process."""
 
     def run(self) -> None:
-        index = 0
         try:
-            while not self.stop_event.is_set():
-                start = time.perf_counter()
-                try:
-                    takes = next(self.source)
-                except StopIteration:
-                    break
-                finally:
-                    self.generator_seconds += time.perf_counter() - start
-                start = time.perf_counter()
-                item = self.prepare(index, takes)
-                self.prepare_seconds += time.perf_counter() - start
-                self._put(item)
-                index += 1
+            with self.priority:
+                self._produce()
         except BaseException as exc:  # handed to the clock thread, which re-raises it
             self.error = exc
         finally:
             self._put(END, force=True)
+
+    def _produce(self) -> None:
+        index = 0
+        while not self.stop_event.is_set():
+            start = time.perf_counter()
+            try:
+                takes = next(self.source)
+            except StopIteration:
+                return
+            finally:
+                generated = time.perf_counter() - start
+                self.generator_seconds += generated
+            start = time.perf_counter()
+            item = self.prepare(index, takes)
+            prepared = time.perf_counter() - start
+            self.prepare_seconds += prepared
+            self.priority.busy(generated + prepared)
+            self._put(item)
+            index += 1
 
     def _put(self, item: Any, force: bool = False) -> None:
         while True:

@@ -13,6 +13,7 @@ from convodrive.backends.base import BackendFailed
 from convodrive.motion.targets import TargetFrame
 from convodrive.plumbing.errors import error_line
 from convodrive.plumbing.stats import Histogram
+from convodrive.scheduler.priority import HelperPriority
 from convodrive.scheduler.route import Route
 from convodrive.scheduler.slots import END, BlockingSlot, DropOldestSlot
 
@@ -55,6 +56,8 @@ class BackendWorker(threading.Thread):
         else:
             self.slot = DropOldestSlot(DropOldestSlot.BACKLOG_CAPACITY)
         self.stats = BackendStats(route.backend.name)
+        self.priority = HelperPriority(paced and route.backend.light, f"backend {route.backend.name}")
+        """Real-time scheduling below the clock while frames flow, for a light backend's worker."""
         self._now = now
         self._on_sent = on_sent
         self._last_status = "ok"
@@ -62,37 +65,43 @@ class BackendWorker(threading.Thread):
         """The index of the frame last handed to the backend, for the log."""
 
     def run(self) -> None:
-        backend = self.route.backend
-        consecutive = 0
         try:
-            while True:
-                item = self.slot.get()
-                if item is END:
-                    break
-                if self.stats.failed:
-                    self.stats.dropped += 1
-                    continue
-                start = time.perf_counter()
-                self._frame = item.index
-                try:
-                    backend.send(item)
-                    consecutive = 0
-                    self.stats.sent += 1
-                    self._sent(item)
-                except Exception as exc:  # a backend fault degrades this backend only
-                    consecutive += 1
-                    self.stats.errors += 1
-                    self.stats.last_error = error_line(exc)
-                    if consecutive == 1:  # the first of a run of errors; the report counts them all
-                        log.warning("%s: frame %d: %s", backend.name, item.index, self.stats.last_error)
-                    if consecutive >= MAX_CONSECUTIVE_ERRORS or isinstance(exc, BackendFailed):
-                        self.stats.failed = True
-                        self._event("failed", self.stats.last_error)
-                finally:
-                    self.stats.send_seconds.append(time.perf_counter() - start)
-                self._watch_health()
+            with self.priority:  # closing (files written, servos eased) runs at ordinary priority
+                self._send_frames()
         finally:
             self.close_backend()
+
+    def _send_frames(self) -> None:
+        backend = self.route.backend
+        consecutive = 0
+        while True:
+            item = self.slot.get()
+            if item is END:
+                return
+            if self.stats.failed:
+                self.stats.dropped += 1
+                continue
+            start = time.perf_counter()
+            self._frame = item.index
+            try:
+                backend.send(item)
+                consecutive = 0
+                self.stats.sent += 1
+                self._sent(item)
+            except Exception as exc:  # a backend fault degrades this backend only
+                consecutive += 1
+                self.stats.errors += 1
+                self.stats.last_error = error_line(exc)
+                if consecutive == 1:  # the first of a run of errors; the report counts them all
+                    log.warning("%s: frame %d: %s", backend.name, item.index, self.stats.last_error)
+                if consecutive >= MAX_CONSECUTIVE_ERRORS or isinstance(exc, BackendFailed):
+                    self.stats.failed = True
+                    self._event("failed", self.stats.last_error)
+            finally:
+                spent = time.perf_counter() - start
+                self.stats.send_seconds.append(spent)
+                self.priority.busy(spent)
+            self._watch_health()
 
     def _sent(self, frame: TargetFrame) -> None:
         if not frame.dispatched:

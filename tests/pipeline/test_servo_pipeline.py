@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -49,17 +51,39 @@ def test_dialogue_goal_log_matches_the_retargeted_trajectory(tmp_path: Path) -> 
     assert result.report["backends"]["dynamixel"]["health"]["status"] == "ok"
 
 
+def wait_for(condition: Callable[[], bool], what: str, timeout: float = 60.0) -> None:
+    """Block until ``condition()`` holds; a generous ``timeout`` only stops a broken test hanging."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, f"waited {timeout:.0f} s for {what}"
+        time.sleep(0.01)
+
+
 def test_faults_during_a_run_are_named_in_the_run_report(tmp_path: Path) -> None:
-    faults = [parse_fault("overload:4@0.3"), parse_fault("vanish:6@0.3+0.5"), parse_fault("corrupt:0.02")]
-    with start_emulated_head(faults=faults) as emu:
+    """Faults are injected at a frame of the run, and the run is held (an offline clock waits)
+    until the driver has met each, so a loaded machine cannot move them outside the run."""
+    retries = 2
+    with start_emulated_head(faults=[parse_fault("corrupt:0.02")]) as emu:
+
+        def inject(done: int, _total: int) -> None:
+            if done == 30:  # a second into the run: the head is open and moving
+                status_reads = emu.requests[(4, dp.READ)]
+                emu.hardware_error(4, "overload")
+                emu.vanish(6)
+                wait_for(lambda: emu.requests[(4, dp.READ)] > status_reads, "the driver to read servo 4's error")
+                # One group read, then the servo alone, 1 + retries times: after that it is lost.
+                wait_for(lambda: emu.unanswered[6] >= 2 + retries, "the driver to give up on servo 6")
+            elif done == 90:
+                emu.reappear(6)
+
         request = DriveRequest(
             audio=bundled_dialogue(),
             backends=("dynamixel",),
             out_dir=tmp_path,
             realtime=False,
-            backend_options={"dynamixel": {"port": emu.port, "ease_s": 0.2, "read_rate": 20}},
+            backend_options={"dynamixel": {"port": emu.port, "ease_s": 0.2, "read_rate": 20, "retries": retries}},
         )
-        result = drive(request)
+        result = drive(request, on_frame=inject)
         torque = [emu.servo(i).torque for i in range(1, 8)]
     entry = result.report["backends"]["dynamixel"]
     assert result.report["frames"] == result.report["expected_frames"] and not entry["failed"]
@@ -68,6 +92,36 @@ def test_faults_during_a_run_are_named_in_the_run_report(tmp_path: Path) -> None
     assert {"overload:jaw", "servo_lost:eye_tilt"} <= set(report["faults"]), report["faults"]
     assert report["status"] == "degraded" and report["torque_off"] and not any(torque)
     assert "degraded" in {e["status"] for e in entry["health_events"]}
+
+
+def test_short_replies_degrade_the_head_and_the_run_goes_on(tmp_path: Path) -> None:
+    """Status packets with too little data (the SDK raised IndexError on them, or read their
+    checksum as data) are one servo's bad exchanges: counted, retried, named; never the run's end."""
+    with start_emulated_head() as emu:
+
+        def inject(done: int, _total: int) -> None:
+            if done == 30:
+                emu.short_replies(3, servo_id=2)
+                wait_for(lambda: emu.counters["shortened"] >= 3, "the driver to read servo 2 three times")
+
+        request = DriveRequest(
+            audio=bundled_dialogue(),
+            backends=("record", "dynamixel"),
+            out_dir=tmp_path,
+            realtime=False,
+            backend_options={"dynamixel": {"port": emu.port, "ease_s": 0.2, "read_rate": 20}},
+        )
+        result = drive(request, on_frame=inject)
+        torque = [emu.servo(i).torque for i in range(1, 8)]
+    entry = result.report["backends"]["dynamixel"]
+    assert result.report["frames"] == result.report["expected_frames"]
+    assert entry["frames_sent"] == result.report["frames"] and not entry["failed"] and not entry["errors"]
+    report = entry["report"]
+    assert "short_replies:neck_tilt" in report["faults"], report["faults"]
+    assert report["servos"]["neck_tilt"]["short"] >= 1
+    assert not any(f.startswith("poll_error") for f in report["faults"]), report["faults"]
+    assert report["status"] == "degraded" and report["torque_off"] and not any(torque)
+    assert result.report["backends"]["record"]["frames_sent"] == result.report["frames"]
 
 
 def test_the_summary_names_the_lost_servo(tmp_path: Path) -> None:

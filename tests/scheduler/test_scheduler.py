@@ -160,3 +160,94 @@ def test_backends_finishing_after_the_clock_report_their_progress(tmp_path: Path
     assert len(totals) == 1 and totals.pop() >= 5
     done = [d for d, _, _ in calls]
     assert done == sorted(done) and done[-1] > done[0]
+
+
+def _realtime_allowed() -> bool:
+    """Whether this process may use SCHED_FIFO (root, CAP_SYS_NICE or an rtprio limit)."""
+    import os
+
+    if not hasattr(os, "sched_setscheduler") or os.environ.get("CONVODRIVE_NO_RENICE"):
+        return False
+    ok: list[bool] = []
+
+    def attempt() -> None:  # in a thread of its own, which ends with the policy it set
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+            ok.append(True)
+        except OSError:
+            ok.append(False)
+
+    t = threading.Thread(target=attempt)
+    t.start()
+    t.join()
+    return ok[0]
+
+
+@pytest.mark.skipif(not _realtime_allowed(), reason="this process may not use real-time scheduling")
+def test_a_paced_run_puts_the_producer_and_light_workers_just_below_the_clock(tmp_path: Path) -> None:
+    """Measured: the clock waited 8-46 ms for the interpreter lock held by the producer or a worker
+    that the OS had preempted. Those that work little a frame run real-time, below the clock."""
+    import os
+
+    from convodrive.scheduler.priority import CLOCK_FIFO_PRIORITY, HELPER_FIFO_PRIORITY
+
+    seen: dict[str, set[tuple[int, int]]] = {"producer": set(), "light": set(), "heavy": set()}
+
+    def policy() -> tuple[int, int]:
+        return os.sched_getscheduler(0) & ~getattr(os, "SCHED_RESET_ON_FORK", 0), os.sched_getparam(0).sched_priority
+
+    class Recorder(CountingBackend):
+        def send(self, frame):
+            seen[self.name].add(policy())
+
+    class LightRecorder(Recorder):
+        light = True
+
+    def source():
+        for frame in neutral_frames(20):
+            seen["producer"].add(policy())
+            yield frame
+
+    light, heavy = LightRecorder({"name": "light"}), Recorder({"name": "heavy"})
+    result = Scheduler(source(), _open([light, heavy], tmp_path, False), clock=MonotonicClock()).run()
+    assert result.clock_priority.startswith(f"SCHED_FIFO {CLOCK_FIFO_PRIORITY}")
+    assert seen["producer"] == seen["light"] == {(os.SCHED_FIFO, HELPER_FIFO_PRIORITY)}
+    assert HELPER_FIFO_PRIORITY < CLOCK_FIFO_PRIORITY
+    assert {p for p, _ in seen["heavy"]} == {os.SCHED_OTHER}, "a backend that did not say it is light"
+
+
+@pytest.mark.skipif(not _realtime_allowed(), reason="this process may not use real-time scheduling")
+def test_a_thread_busier_than_it_promised_leaves_real_time_priority() -> None:
+    import os
+    import time
+
+    from convodrive.scheduler.priority import HelperPriority
+
+    def run() -> None:
+        with HelperPriority(True, "generator") as helper:
+            helper.WINDOW_S = 0.05
+            assert os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK == os.SCHED_FIFO
+            helper.busy(0.01)  # well within its share
+            time.sleep(0.06)
+            helper.busy(0.01)
+            states.append((helper.active, os.sched_getscheduler(0)))
+            time.sleep(0.06)
+            helper.busy(0.05)  # more than half the window: a generator slower than real time
+            states.append((helper.active, os.sched_getscheduler(0)))
+
+    states: list[tuple[bool, int]] = []
+    t = threading.Thread(target=run)
+    t.start()
+    t.join()
+    assert states[0][0] and states[0][1] & ~os.SCHED_RESET_ON_FORK == os.SCHED_FIFO
+    assert states[1] == (False, os.SCHED_OTHER)
+
+
+def test_nothing_changes_priority_in_an_offline_run() -> None:
+    import os
+
+    from convodrive.scheduler.priority import HelperPriority
+
+    before = os.sched_getscheduler(0)
+    with HelperPriority(False, "generator") as helper:
+        assert not helper.active and os.sched_getscheduler(0) == before

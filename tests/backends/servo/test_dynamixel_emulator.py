@@ -129,7 +129,7 @@ def test_a_late_reply_is_not_taken_for_the_next_answer() -> None:
             assert bus.read("Firmware_Version", "jaw") is None
             bus.retries = 1
             assert bus.read("Present_Position", "jaw") == 2048  # asked again after the stale reply
-            assert bus.health["jaw"].corrupt == 1 and bus.health["jaw"].timeouts == 1
+            assert bus.health["jaw"].short == 1 and bus.health["jaw"].timeouts == 1
         finally:
             bus.disconnect()
 
