@@ -164,6 +164,8 @@ class LoggedWrite:
     value: int
     inst: int = dp.WRITE
     """The instruction that carried it (WRITE, SYNC_WRITE, BULK_WRITE, ACTION)."""
+    packet: int = 0
+    """The ordinal of the packet that carried it: writes of one SYNC_WRITE share it."""
 
     @property
     def tick(self) -> int:
@@ -497,7 +499,7 @@ class DynamixelEmulator(PtyDevice):
             reg = servo.table.reg(name)
             if reg.address >= address and reg.address + reg.size <= address + len(data):
                 if not error:
-                    log.append(LoggedWrite(self.clock(), servo_id, servo.get(name), inst))
+                    log.append(LoggedWrite(self.clock(), servo_id, servo.get(name), inst, self.counters["packets"]))
                 elif name == "Goal_Position":
                     self.counters["refused_goals"] += 1
         return error

@@ -15,6 +15,7 @@ from tests.conftest import require
 pytestmark = require("hardware")
 
 from convodrive.backends.dynamixel import DynamixelBackend  # noqa: E402
+from convodrive.backends.servo import dynamixel_packet as dp  # noqa: E402
 from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, start_emulated_head  # noqa: E402
 from convodrive.motion.targets import TargetFrame  # noqa: E402
 from convodrive.plumbing.errors import UserError  # noqa: E402
@@ -79,9 +80,10 @@ def test_trajectory_reaches_the_wire_within_one_tick() -> None:
         want = [expected_ticks(v)[servo_id] for v in frames]
         assert len(got) == len(frames)
         assert np.max(np.abs(np.array(got) - np.array(want))) <= 1, servo_id
-    # One SYNC_WRITE per frame: all seven goals of a frame carry (nearly) the same time stamp.
-    stamps = np.array([g.time for g in sent[: 7 * len(frames)]]).reshape(len(frames), 7)
-    assert np.all(np.ptp(stamps, axis=1) < 0.005)
+    # One SYNC_WRITE per frame: the seven goals of a frame came in one packet.
+    per_frame = np.array([g.packet for g in sent[: 7 * len(frames)]]).reshape(len(frames), 7)
+    assert all(g.inst == dp.SYNC_WRITE for g in sent[: 7 * len(frames)])
+    assert np.all(per_frame == per_frame[:, :1]) and len(set(per_frame[:, 0])) == len(frames)
     assert report["status"] == "ok" and report["faults"] == [] and report["frames"] == len(frames), report["faults"]
     assert report["torque_off"] and all(not emu.servo(i).torque for i in range(1, 8))
     assert report["servos"]["neck_pan"]["temperature_c"] == 30 and report["bus_ms"]["write"]["n"] >= len(frames)
