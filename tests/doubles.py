@@ -33,6 +33,7 @@ class CountingBackend(Backend):
 
     name = "fast"
     realtime = True
+    light = True  # appending an index: a real-time run schedules its worker below the clock
     Options = DoubleOptions
     options: DoubleOptions
 
@@ -51,6 +52,8 @@ class CountingBackend(Backend):
 
 class SlowBackend(CountingBackend):
     """Takes ``delay`` seconds per frame, like a congested serial bus."""
+
+    light = False
 
     def send(self, frame: TargetFrame) -> None:
         time.sleep(self.options.delay)

@@ -19,6 +19,7 @@ flag); ``lock`` serialises callers.
 from __future__ import annotations
 
 import dataclasses
+import select
 import termios
 import threading
 import time
@@ -98,6 +99,8 @@ class ShortReply(Exception):
     """A status packet with a valid checksum but less data than the request asked for."""
 
 
+READ_WAIT_S = 0.001
+"""Longest a read waits for bytes before the SDK looks at its packet timeout again."""
 STATUS_OVERHEAD = 11
 """Bytes of a status packet around its data: header 4, id, length 2, instruction, error, CRC 2."""
 PING_DATA = 3  # model number 2, firmware 1
@@ -133,6 +136,22 @@ class LatencyPort(sdk.PortHandler):
     def setPacketTimeout(self, packet_length: int) -> None:  # noqa: N802 (SDK name)
         self.packet_start_time = self.getCurrentTime()
         self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * self.latency_ms + 2.0
+
+    def readPort(self, length: int) -> bytes:  # noqa: N802 (SDK name)
+        """What has arrived, waiting up to ``READ_WAIT_S`` for it when nothing has.
+
+        The SDK calls this in a loop until its packet timeout, and the port never blocks, so the
+        loop spun a core for the whole wait (up to 2 x latency_ms for a silent servo). Waiting in
+        ``select`` returns as soon as a byte comes and leaves the CPU to others meanwhile.
+        """
+        data = self.ser.read(length)
+        if data:
+            return bytes(data)
+        try:
+            select.select([self.ser.fileno()], [], [], READ_WAIT_S)
+        except ValueError as exc:  # the port was closed under us
+            raise OSError(str(exc)) from None
+        return bytes(self.ser.read(length))
 
 
 class DynamixelBus:

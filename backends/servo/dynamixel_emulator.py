@@ -600,6 +600,10 @@ def start_emulated_head(
     return emu
 
 
+EMULATOR_FIFO_PRIORITY = 8
+"""Below the driver's clock (10) and its helpers (9): the emulated head never delays the clock."""
+
+
 @contextlib.contextmanager
 def emulated_head_process(faults: Iterable[str] = (), ids: Iterable[int] = range(1, 8)) -> Iterator[str]:
     """An emulated head served by a process of its own, as real servos sit outside the driver's
@@ -628,10 +632,16 @@ def emulated_head_process(faults: Iterable[str] = (), ids: Iterable[int] = range
 def _serve_head(conn: Connection, ids: list[int], faults: list[Fault]) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    try:  # it stands for servos, which would not share the driver's CPU: answer like them, on time
-        os.nice(-10)
-    except OSError:
-        pass
+    # It stands for servos, which do not share the driver's CPU: answer like them, on time. Its
+    # threads only wait for bytes and sleep out wire time, so real-time scheduling (inherited by
+    # the pty server's thread, below the driver's clock) costs the machine nothing.
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(EMULATOR_FIFO_PRIORITY))
+    except (AttributeError, OSError):
+        try:
+            os.nice(-10)
+        except OSError:
+            pass
     with start_emulated_head(ids, faults=faults) as head:
         conn.send(head.port)
         try:

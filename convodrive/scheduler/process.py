@@ -24,6 +24,7 @@ import os
 import signal
 import subprocess
 import threading
+import time
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,7 @@ from convodrive.backends.base import Backend, BackendFailed, Session
 from convodrive.motion.targets import TargetFrame, TargetSpec
 from convodrive.plumbing.child import start_child
 from convodrive.plumbing.errors import RemoteError, UserError, error_line
+from convodrive.scheduler.priority import HelperPriority
 
 FILE_NICE = 5
 """A child that feeds files takes this much less CPU priority: its outputs may lag, the clock not."""
@@ -71,7 +73,7 @@ class ProcessBackend(Backend):
     # ------------------------------------------------------------------ the contract
     def open(self, spec: TargetSpec, session: Session) -> None:
         super().open(spec, session)
-        self._process, self._conn = start_child(serve, self.inner_class, self.options, self.nice)
+        self._process, self._conn = start_child(serve, self.inner_class, self.options, self.nice, self.realtime)
         try:
             self._call("open", (spec, session), OPEN_TIMEOUT_S)
         except BaseException:
@@ -199,9 +201,15 @@ class _Terminated(BaseException):
     """SIGTERM in the child while it waits for a call: stop serving and close the backend."""
 
 
-def serve(conn: Connection, backend_class: type[Backend], options: dict[str, Any], nice: int) -> None:
+def serve(
+    conn: Connection, backend_class: type[Backend], options: dict[str, Any], nice: int, realtime: bool = False
+) -> None:
     """The child's main: answer calls until ``close``, SIGTERM or the parent's end closing, then
-    close the backend and send back its health, report, outputs and close error."""
+    close the backend and send back its health, report, outputs and close error.
+
+    A real-time backend's calls (a servo head's frames) are answered under real-time scheduling
+    below the parent's clock (``HelperPriority``), so a busy machine cannot hold a frame back for
+    longer than the parent's slot keeps it; threads the backend starts get ordinary scheduling."""
     state = {"busy": False, "terminated": False}
 
     def terminate(_signum: int, _frame: Any) -> None:
@@ -218,23 +226,28 @@ def serve(conn: Connection, backend_class: type[Backend], options: dict[str, Any
             pass
     backend = backend_class(options)
     signal.signal(signal.SIGUSR1, lambda _s, _f: backend.hurry())
+    priority = HelperPriority(realtime, f"backend {backend.name}")
     try:
-        while not state["terminated"]:
-            try:
-                method, args = conn.recv()
-            except (EOFError, OSError):  # the parent is gone: finish the outputs anyway
-                break
-            state["busy"] = True
-            if method == "close":
-                break
-            try:
-                answer: tuple[str, Any] = ("ok", getattr(backend, method)(*args))
-            except UserError as exc:
-                answer = ("user", str(exc))
-            except Exception as exc:
-                answer = ("error", error_line(exc))
-            conn.send(answer)
-            state["busy"] = False
+        with priority:
+            while not state["terminated"]:
+                try:
+                    method, args = conn.recv()
+                except (EOFError, OSError):  # the parent is gone: finish the outputs anyway
+                    break
+                state["busy"] = True
+                if method == "close":
+                    break
+                start = time.perf_counter()
+                try:
+                    answer: tuple[str, Any] = ("ok", getattr(backend, method)(*args))
+                except UserError as exc:
+                    answer = ("user", str(exc))
+                except Exception as exc:
+                    answer = ("error", error_line(exc))
+                if method == "send":
+                    priority.busy(time.perf_counter() - start)
+                conn.send(answer)
+                state["busy"] = False
     except _Terminated:
         pass
     finally:

@@ -197,6 +197,8 @@ def test_a_paced_run_puts_the_producer_and_light_workers_just_below_the_clock(tm
         return os.sched_getscheduler(0) & ~getattr(os, "SCHED_RESET_ON_FORK", 0), os.sched_getparam(0).sched_priority
 
     class Recorder(CountingBackend):
+        light = False
+
         def send(self, frame):
             seen[self.name].add(policy())
 
