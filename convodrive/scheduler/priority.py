@@ -20,7 +20,7 @@ HELPER_FIFO_PRIORITY = CLOCK_FIFO_PRIORITY - 1
 clock, so the clock still preempts them when it wakes."""
 
 _FIFO = getattr(os, "SCHED_FIFO", 1) | getattr(os, "SCHED_RESET_ON_FORK", 0)
-"""Real-time, and not inherited: a thread or process these threads start (an ONNX Runtime pool, an
+"""Real-time, and not inherited: a thread or process a helper starts (an ONNX Runtime pool, an
 ffmpeg decoder) gets ordinary scheduling."""
 
 
@@ -78,7 +78,9 @@ def clock_thread_priority(paced: bool) -> Iterator[str | None]:
     try:
         old_policy = os.sched_getscheduler(0)
         old_param = os.sched_getparam(0)
-        os.sched_setscheduler(0, _FIFO, os.sched_param(CLOCK_FIFO_PRIORITY))
+        # Inherited, unlike the helpers': the audio threads a playback clock starts from here
+        # (PortAudio's callback) must run as promptly as the clock that reads their position.
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(CLOCK_FIFO_PRIORITY))
     except (PermissionError, OSError):
         yield None
         return
