@@ -98,6 +98,30 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
             pytest.skip(reason)
 
 
+def realtime_allowed() -> bool:
+    """Whether this process may use SCHED_FIFO (root, CAP_SYS_NICE or an rtprio limit)."""
+    import threading
+
+    if not hasattr(os, "sched_setscheduler") or os.environ.get("CONVODRIVE_NO_RENICE"):
+        return False
+    ok: list[bool] = []
+
+    def attempt() -> None:  # in a thread of its own, which ends with the policy it set
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+            ok.append(True)
+        except OSError:
+            ok.append(False)
+
+    t = threading.Thread(target=attempt)
+    t.start()
+    t.join()
+    return ok[0]
+
+
+needs_realtime = pytest.mark.skipif(not realtime_allowed(), reason="this process may not use real-time scheduling")
+
+
 def run_cli(
     *args: str,
     env: dict[str, str] | None = None,

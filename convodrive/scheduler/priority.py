@@ -19,7 +19,9 @@ HELPER_FIFO_PRIORITY = CLOCK_FIFO_PRIORITY - 1
 """The producer's and light workers' real-time priority: above every ordinary process, below the
 clock, so the clock still preempts them when it wakes."""
 
-_FIFO = getattr(os, "SCHED_FIFO", 1) | getattr(os, "SCHED_RESET_ON_FORK", 0)
+_FIFO_INHERITED = getattr(os, "SCHED_FIFO", 1)
+"""Real-time, inherited by the threads and processes the thread starts."""
+_FIFO = _FIFO_INHERITED | getattr(os, "SCHED_RESET_ON_FORK", 0)
 """Real-time, and not inherited: a thread or process a helper starts (an ONNX Runtime pool, an
 ffmpeg decoder) gets ordinary scheduling."""
 
@@ -104,54 +106,60 @@ class HelperPriority:
 
     Real-time priority can starve the machine, so it is given only to bounded work (the producer,
     which never runs more than its buffer ahead, and workers whose ``send`` is light) and only while
-    that work stays small: a thread busy for more than ``MAX_SHARE`` of a ``WINDOW_S`` window (a
-    generator slower than real time, a backend slower than it said) goes back to ordinary
-    scheduling for the rest of the run. Use it as a context manager in the thread itself and report
-    work with ``busy``.
+    that work stays small: a thread that used more than ``MAX_SHARE`` of a ``WINDOW_S`` window of
+    CPU time (a generator slower than real time, a backend slower than it said) goes back to
+    ordinary scheduling for the rest of the run. Waiting (for audio, for a child's answer) is not
+    work: the share is the thread's CPU time. Use it as a context manager in the thread itself and
+    call ``tick`` after each piece of work.
+
+    Threads the helper starts get ordinary scheduling (an ONNX Runtime pool), unless ``inherit``:
+    a servo child's supervisor holds the bus and the interpreter lock that its frames wait for, so
+    it must not be preempted either.
     """
 
     MAX_SHARE = 0.5
     WINDOW_S = 1.0
 
-    def __init__(self, paced: bool, who: str) -> None:
+    def __init__(self, paced: bool, who: str, *, inherit: bool = False) -> None:
         self.paced = paced
         self.who = who
+        self.inherit = inherit
         self.active = False
         self.demoted = False
         self._old: tuple[int, os.sched_param] | None = None
-        self._busy = 0.0
         self._window_start = 0.0
+        self._cpu_start = 0.0
 
     def __enter__(self) -> HelperPriority:
         if not self.paced or not hasattr(os, "sched_setscheduler") or os.environ.get("CONVODRIVE_NO_RENICE"):
             return self
+        policy = _FIFO_INHERITED if self.inherit else _FIFO
         try:
             self._old = (os.sched_getscheduler(0), os.sched_getparam(0))
-            os.sched_setscheduler(0, _FIFO, os.sched_param(HELPER_FIFO_PRIORITY))
+            os.sched_setscheduler(0, policy, os.sched_param(HELPER_FIFO_PRIORITY))
         except (PermissionError, OSError):
             self._old = None
             return self
         self.active = True
-        self._window_start = time.monotonic()
+        self._window_start, self._cpu_start = time.monotonic(), time.thread_time()
         return self
 
-    def busy(self, seconds: float) -> None:
-        """Count ``seconds`` of this thread's work; leave real-time priority if it is too much."""
+    def tick(self) -> None:
+        """After a piece of work: leave real-time priority if this thread's CPU share is too much."""
         if not self.active:
             return
-        self._busy += seconds
         now = time.monotonic()
         window = now - self._window_start
         if window < self.WINDOW_S:
             return
-        share = self._busy / window
-        self._busy, self._window_start = 0.0, now
+        cpu = time.thread_time()
+        share = (cpu - self._cpu_start) / window
+        self._window_start, self._cpu_start = now, cpu
         if share > self.MAX_SHARE:
             self._restore()
             self.demoted = True
             log.info(
-                "%s: busy %.0f %% of the time, too much for real-time priority; back to ordinary "
-                "scheduling (thread %s)",
+                "%s: used %.0f %% of a core, too much for real-time priority; back to ordinary scheduling (thread %s)",
                 self.who,
                 100 * share,
                 threading.current_thread().name,

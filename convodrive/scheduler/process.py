@@ -24,7 +24,6 @@ import os
 import signal
 import subprocess
 import threading
-import time
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -209,7 +208,10 @@ def serve(
 
     A real-time backend's calls (a servo head's frames) are answered under real-time scheduling
     below the parent's clock (``HelperPriority``), so a busy machine cannot hold a frame back for
-    longer than the parent's slot keeps it; threads the backend starts get ordinary scheduling."""
+    longer than the parent's slot keeps it. A hardware backend's own threads (a servo head's
+    supervisor, which polls the bus and waits for its replies) share it: a frame waits for the bus
+    and the interpreter lock they hold, which at ordinary priority were preempted with both held.
+    Others' (a live window's video encoder) get ordinary scheduling."""
     state = {"busy": False, "terminated": False}
 
     def terminate(_signum: int, _frame: Any) -> None:
@@ -226,7 +228,7 @@ def serve(
             pass
     backend = backend_class(options)
     signal.signal(signal.SIGUSR1, lambda _s, _f: backend.hurry())
-    priority = HelperPriority(realtime, f"backend {backend.name}")
+    priority = HelperPriority(realtime, f"backend {backend.name}", inherit=backend.hardware)
     try:
         with priority:
             while not state["terminated"]:
@@ -237,15 +239,13 @@ def serve(
                 state["busy"] = True
                 if method == "close":
                     break
-                start = time.perf_counter()
                 try:
                     answer: tuple[str, Any] = ("ok", getattr(backend, method)(*args))
                 except UserError as exc:
                     answer = ("user", str(exc))
                 except Exception as exc:
                     answer = ("error", error_line(exc))
-                if method == "send":
-                    priority.busy(time.perf_counter() - start)
+                priority.tick()
                 conn.send(answer)
                 state["busy"] = False
     except _Terminated:

@@ -58,13 +58,11 @@ class Producer(threading.Thread):
             except StopIteration:
                 return
             finally:
-                generated = time.perf_counter() - start
-                self.generator_seconds += generated
+                self.generator_seconds += time.perf_counter() - start
             start = time.perf_counter()
             item = self.prepare(index, takes)
-            prepared = time.perf_counter() - start
-            self.prepare_seconds += prepared
-            self.priority.busy(generated + prepared)
+            self.prepare_seconds += time.perf_counter() - start
+            self.priority.tick()
             self._put(item)
             index += 1
 

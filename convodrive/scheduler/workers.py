@@ -100,7 +100,7 @@ class BackendWorker(threading.Thread):
             finally:
                 spent = time.perf_counter() - start
                 self.stats.send_seconds.append(spent)
-                self.priority.busy(spent)
+                self.priority.tick()
             self._watch_health()
 
     def _sent(self, frame: TargetFrame) -> None:

@@ -12,6 +12,7 @@ from bench.bench_scheduler import run_bench
 from convodrive.backends.base import Session
 from convodrive.scheduler import DropOldestSlot, MonotonicClock, Route, Scheduler, SimulatedClock
 from convodrive.scheduler.report import build_report, summarize
+from tests.conftest import needs_realtime
 from tests.doubles import CountingBackend, FailingBackend, SlowBackend, neutral_frames
 
 
@@ -162,28 +163,7 @@ def test_backends_finishing_after_the_clock_report_their_progress(tmp_path: Path
     assert done == sorted(done) and done[-1] > done[0]
 
 
-def _realtime_allowed() -> bool:
-    """Whether this process may use SCHED_FIFO (root, CAP_SYS_NICE or an rtprio limit)."""
-    import os
-
-    if not hasattr(os, "sched_setscheduler") or os.environ.get("CONVODRIVE_NO_RENICE"):
-        return False
-    ok: list[bool] = []
-
-    def attempt() -> None:  # in a thread of its own, which ends with the policy it set
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
-            ok.append(True)
-        except OSError:
-            ok.append(False)
-
-    t = threading.Thread(target=attempt)
-    t.start()
-    t.join()
-    return ok[0]
-
-
-@pytest.mark.skipif(not _realtime_allowed(), reason="this process may not use real-time scheduling")
+@needs_realtime
 def test_a_paced_run_puts_the_producer_and_light_workers_just_below_the_clock(tmp_path: Path) -> None:
     """Measured: the clock waited 8-46 ms for the interpreter lock held by the producer or a worker
     that the OS had preempted. Those that work little a frame run real-time, below the clock."""
@@ -218,8 +198,11 @@ def test_a_paced_run_puts_the_producer_and_light_workers_just_below_the_clock(tm
     assert {p for p, _ in seen["heavy"]} == {os.SCHED_OTHER}, "a backend that did not say it is light"
 
 
-@pytest.mark.skipif(not _realtime_allowed(), reason="this process may not use real-time scheduling")
+@needs_realtime
 def test_a_thread_busier_than_it_promised_leaves_real_time_priority() -> None:
+    """Its share is CPU time: a thread that waits (a live generator waiting for audio, a worker
+    waiting for its child's answer) keeps real-time priority; one that computes for more than half
+    a window leaves it."""
     import os
     import time
 
@@ -229,20 +212,50 @@ def test_a_thread_busier_than_it_promised_leaves_real_time_priority() -> None:
         with HelperPriority(True, "generator") as helper:
             helper.WINDOW_S = 0.05
             assert os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK == os.SCHED_FIFO
-            helper.busy(0.01)  # well within its share
-            time.sleep(0.06)
-            helper.busy(0.01)
+            for _ in range(3):  # waiting for all of three windows
+                time.sleep(0.06)
+                helper.tick()
             states.append((helper.active, os.sched_getscheduler(0)))
             time.sleep(0.06)
-            helper.busy(0.05)  # more than half the window: a generator slower than real time
+            helper.tick()
+            spin_until = time.thread_time() + 0.05  # more than half the window: slower than real time
+            while time.thread_time() < spin_until:
+                pass
+            helper.tick()
             states.append((helper.active, os.sched_getscheduler(0)))
 
     states: list[tuple[bool, int]] = []
     t = threading.Thread(target=run)
     t.start()
     t.join()
-    assert states[0][0] and states[0][1] & ~os.SCHED_RESET_ON_FORK == os.SCHED_FIFO
+    assert states[0][0] and states[0][1] & ~os.SCHED_RESET_ON_FORK == os.SCHED_FIFO, "waiting is not work"
     assert states[1] == (False, os.SCHED_OTHER)
+
+
+@needs_realtime
+def test_threads_a_helper_starts_share_its_priority_only_when_it_says_so() -> None:
+    """A servo child's supervisor holds the bus its frames wait for: it shares the frames' priority
+    (``inherit``); an ONNX Runtime pool that a generator starts does not."""
+    import os
+
+    from convodrive.scheduler.priority import HelperPriority
+
+    def started_from(inherit: bool) -> int:
+        policies: list[int] = []
+
+        def helper() -> None:
+            with HelperPriority(True, "helper", inherit=inherit):
+                child = threading.Thread(target=lambda: policies.append(os.sched_getscheduler(0)))
+                child.start()
+                child.join()
+
+        t = threading.Thread(target=helper)
+        t.start()
+        t.join()
+        return policies[0] & ~os.SCHED_RESET_ON_FORK
+
+    assert started_from(inherit=True) == os.SCHED_FIFO
+    assert started_from(inherit=False) == os.SCHED_OTHER
 
 
 def test_nothing_changes_priority_in_an_offline_run() -> None:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from convodrive.backends.base import Session
-from tests.conftest import require
+from tests.conftest import needs_realtime, require
 
 pytestmark = require("hardware")
 
@@ -256,3 +256,32 @@ def test_xl320_table_drives_two_byte_goals() -> None:
     assert goals == {1: round(512 + 0.5 * per_rad), 2: round(512 - 0.3 * per_rad)}
     assert limits == (int(np.floor(512 - 1.4 * per_rad)), int(np.ceil(512 + 1.4 * per_rad)))
     assert report["status"] == "ok" and report["torque_off"] and set(report["servos"]) == set(names)
+
+
+@needs_realtime
+def test_a_servo_childs_bus_threads_share_its_real_time_priority() -> None:
+    """In a real-time run the head answers frames from a child process under SCHED_FIFO below the
+    clock. Its supervisor polls the bus and holds the bus lock and the interpreter lock that the
+    next frame waits for: at ordinary priority a loaded machine preempted it with both held, and
+    the head dropped frames. So its threads run real-time too (not a native pool that numpy
+    started before: it never holds the interpreter lock)."""
+    import os
+
+    from convodrive.scheduler.priority import HELPER_FIFO_PRIORITY
+    from convodrive.scheduler.process import ProcessBackend
+
+    with start_emulated_head() as emu:
+        backend = ProcessBackend(DynamixelBackend(options(emu.port)))
+        backend.open(SPEC, session())
+        try:
+            backend.send(TargetFrame(0, 0.0, SPEC.neutral.copy(), ()))
+            assert backend._process is not None
+            threads = [int(t) for t in os.listdir(f"/proc/{backend._process.pid}/task")]
+            policies = [
+                (os.sched_getscheduler(t) & ~os.SCHED_RESET_ON_FORK, os.sched_getparam(t).sched_priority)
+                for t in threads
+            ]
+        finally:
+            backend.close()
+    realtime = policies.count((os.SCHED_FIFO, HELPER_FIFO_PRIORITY))
+    assert realtime >= 2, f"the frames' thread and the supervisor: {policies}"
