@@ -65,6 +65,14 @@ def test_live_run_into_servo_head_and_browser_page(pulse, tmp_path: Path) -> Non
         second_png, second = chromium.screenshot()
         received = chromium.evaluate("+document.body.dataset.frames")
         stdout, stderr = run.communicate(timeout=120)
+    except AssertionError as failure:  # say what the live run said: a page that cannot connect means it stopped
+        said = ""
+        if run is not None:
+            if run.poll() is None:
+                run.terminate()
+            said = run.communicate(timeout=30)[1][-3000:]
+        code = None if run is None else run.returncode
+        raise AssertionError(f"{failure}\nthe live run (exit {code}) said:\n{said}") from None
     finally:
         for proc in (run, emulator):
             if proc is not None and proc.poll() is None:
