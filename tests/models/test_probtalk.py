@@ -19,15 +19,6 @@ pytestmark = require("torch")
 DIM, BANDS, SPEAKERS = 330, 80, 3
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Two torch threads on a loaded 2-core machine spin against each other (100x slower)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 TINY = ProbTalkConfig(
     codes=16,
     code_dim=8,
