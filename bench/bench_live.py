@@ -14,7 +14,7 @@ through the real SDK with the ``procedural`` generator.
   first minute to the last in frames (30 fps). ``sync_error_ms`` leaves out the generator's own
   offset (what it does on purpose).
 - Targets: offset within ±33 ms, drift 0 frames over 10 minutes, partner latency <= 150 ms p99.
-  The partner's latency is at least the generator's look-ahead: ``procedural`` declares 100 ms
+  The partner's latency is at least the generator's look-ahead: ``procedural`` needs 115 ms
   plus its ``anticipation`` (``convodrive live`` makes it 0 unless ``-G`` says otherwise).
 
 Run: ``.venv/bin/python -m bench.bench_live [--seconds 600] [-G anticipation=0.3]``
@@ -154,7 +154,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=600.0, help="length of the conversation (default 600)")
     parser.add_argument(
         "-G", dest="generator_options", action="append", default=[], metavar="KEY=VALUE",
-        help="a procedural option, e.g. -G anticipation=0.3 (live runs use 0: a 100 ms look-ahead)",
+        help="a procedural option, e.g. -G anticipation=0.3 (live runs use 0: a 115 ms look-ahead)",
     )  # fmt: skip
     args = parser.parse_args()
     started = time.time()

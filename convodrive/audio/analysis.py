@@ -6,9 +6,10 @@ that voice speaking.
 
 ``DyadicAnalyzer.push`` takes audio as it arrives, in chunks of any size, and returns the frames
 whose features became final; ``finish`` pads the end with silence and returns the rest. Frame f is
-final once audio up to ``(f + LOOKAHEAD_FRAMES + 1) / 30`` s has arrived: the features need 3.5
-frames' worth past the frame's start (see ``features``), the phone decisions for frame f read the
-decoder after the 100 ms block ending at or before ``(f + 4) / 30`` s.
+final once ``LOOKAHEAD_SAMPLES`` (115 ms) past its start have arrived: that is what its voice
+features need (see ``features``), and its phone is read from the decoder after the last 50 ms block
+that ends within them, so self's phones cost no latency beyond the features' (and never less than
+50 ms of decoded audio after the frame). The partner's latency in a live run is this look-ahead.
 """
 
 from __future__ import annotations
@@ -24,15 +25,25 @@ from convodrive.audio.features import (
     VoiceParams,
     VoiceTracker,
     frame_centre,
+    frame_edge,
     raw_frames,
     samples_needed,
 )
 from convodrive.audio.phones import BLOCK, PhoneTracker
-from convodrive.audio.source import DyadicAudio
+from convodrive.audio.source import ANALYSIS_RATE, DyadicAudio
 from convodrive.audio.visemes import NUM_VISEMES, spectral_visemes
 
-LOOKAHEAD_FRAMES = 3
-"""Declared look-ahead of the analysis (and so of the procedural generator): 100 ms."""
+def _features_due(f: int) -> int:
+    """Samples that must have arrived before frame ``f``'s features (and so its phone) are final."""
+    return samples_needed(f + TRACK_LOOKAHEAD + 1)
+
+
+LOOKAHEAD_SAMPLES = max(_features_due(f) - int(frame_edge(f)) for f in range(3))
+"""Audio past a frame's start that the analysis needs before the frame is final (1845: 115 ms);
+the same for every frame, up to the frame grid's rounding, which repeats every 3 frames."""
+LOOKAHEAD_FRAMES = -(-LOOKAHEAD_SAMPLES * 30 // ANALYSIS_RATE) - 1
+"""The same in whole frames, as the generator contract declares it: frame f may depend on audio up to
+``(f + LOOKAHEAD_FRAMES + 1) / 30`` s (3: 100 ms)."""
 
 
 @dataclasses.dataclass
@@ -78,6 +89,7 @@ class DyadicAnalyzer:
         self._pending: list[tuple[dict[str, np.ndarray], dict[str, np.ndarray]]] = []
         self._pending_first = 0
         self._next_block = 0
+        self._next_phone_frame = 0
         self._vis_decided: list[np.ndarray] = []  # phone viseme per frame, from _vis_first on
         self._vis_first = 0
         self._emitted = 0
@@ -89,7 +101,7 @@ class DyadicAnalyzer:
 
     def finish(self, num_frames: int) -> FrameBatch | None:
         """Pad with silence, finalise every frame up to ``num_frames`` and release the decoder."""
-        need = max(samples_needed(num_frames + TRACK_LOOKAHEAD), BLOCK * ((num_frames + 3) // 3 + 1))
+        need = _features_due(num_frames - 1)
         if need > self._received:
             pad = np.zeros(need - self._received, np.float32)
             self._append(pad, pad)
@@ -132,14 +144,18 @@ class DyadicAnalyzer:
             self._raw_done = n
             if len(s["db"]):
                 self._pending.append((s, o))
-        # Phone decisions: block b decides frames 3b-1, 3b, 3b+1.
+        # Phone decisions: after block b, every frame whose features are due before block b+1 ends.
         if self._phones is not None:
             while (self._next_block + 1) * BLOCK <= self._received:
                 b = self._next_block
                 lo = (b * BLOCK) - self._buf_start
                 self._phones.feed_block(b, self._buf_self[lo : lo + BLOCK])
-                frames = np.arange(max(3 * b - 1, 0), 3 * b + 2)
+                first = last = self._next_phone_frame
+                while _features_due(last) < (b + 2) * BLOCK:
+                    last += 1
+                frames = np.arange(first, last)
                 self._vis_decided.append(self._phones.viseme_at(frame_centre(frames) // 160))
+                self._next_phone_frame = last
                 self._next_block += 1
         self._trim()
         return self._emit(limit)

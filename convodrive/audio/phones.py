@@ -1,9 +1,11 @@
 """Streaming phone recognition with pocketsphinx's bundled English model, decoded as a phone loop.
 
-Audio is fed in fixed 100 ms blocks aligned to the stream's start, so the partial hypotheses (and
-everything derived from them) are the same however the caller chunks the audio. Quiet blocks end
-the utterance and are skipped: the decoder only hears speech, which keeps it fast and bounds the
-cost of reading back each partial segmentation.
+Audio is fed in fixed 50 ms blocks aligned to the stream's start, so the partial hypotheses (and
+everything derived from them) are the same however the caller chunks the audio. Blocks are short
+so that a frame's phone can be read as soon as the frame's other features are final (see
+``audio.analysis``) with at least 50 ms of decoded audio after the frame. 100 ms of quiet (two
+quiet blocks) ends the utterance, and quiet blocks outside one are skipped: the decoder only hears
+speech, which keeps it fast and bounds the cost of reading back each partial segmentation.
 
 The decoder runs on a cut-down copy of that model (``viseme_model``): 21 phones, one to three
 per viseme class, with their 64 heaviest Gaussians each, written once per machine to the user's
@@ -26,13 +28,15 @@ from pathlib import Path
 
 import numpy as np
 
-from convodrive.audio.source import CHUNK_SAMPLES
 from convodrive.audio.visemes import phone_viseme
 from convodrive.plumbing.atomic import write_bytes_atomic, write_text_atomic
 from convodrive.plumbing.cache import cache_key, cached_folder
 
-BLOCK = CHUNK_SAMPLES
-_MAX_UTTERANCE_BLOCKS = 150  # 15 s; longer speech is decoded in pieces
+BLOCK = 800
+"""Samples the decoder takes at a time (50 ms at 16 kHz)."""
+QUIET_BLOCKS = 2
+"""Quiet blocks in a row that end an utterance (100 ms: a stop's closure inside a word does not)."""
+_MAX_UTTERANCE_BLOCKS = 300  # 15 s; longer speech is decoded in pieces
 
 
 def pocketsphinx_available() -> bool:
@@ -52,6 +56,7 @@ class PhoneTracker:
         self._in_utt = False
         self._utt_start = 0  # in 10 ms frames
         self._utt_blocks = 0
+        self._quiet = 0  # quiet blocks in a row
         # Committed timeline (finished utterances): parallel lists of start, end (10 ms frames), viseme.
         self._starts: list[int] = []
         self._ends: list[int] = []
@@ -65,10 +70,11 @@ class PhoneTracker:
         loudest = (
             10 * np.log10(np.max(np.mean(np.square(sub, dtype=np.float64), axis=1)) + 1e-10) if len(block) else -100.0
         )
-        silent = loudest < self.silence_db
-        if silent:
-            if self._in_utt:
-                self._end_utterance()
+        self._quiet = self._quiet + 1 if loudest < self.silence_db else 0
+        if self._quiet and not self._in_utt:
+            return
+        if self._quiet >= QUIET_BLOCKS:
+            self._end_utterance()
             return
         if not self._in_utt:
             d.start_utt()
@@ -89,7 +95,7 @@ class PhoneTracker:
 
     def _segments(self) -> list[tuple[int, int, int]]:
         base = self._utt_start
-        return [(base + s.start_frame, base + s.end_frame + 1, _VISEME_OF[s.word]) for s in self._decoder.seg()]
+        return [(base + s.start_frame, base + s.end_frame + 1, _VISEME_OF[s.word]) for s in self._decoder.seg() or ()]  # None before the first hypothesis
 
     def _end_utterance(self) -> None:
         self._decoder.end_utt()

@@ -1,7 +1,8 @@
 """The generator plugin contract (DESIGN, "Plugins").
 
 A generator turns dyadic audio chunks into canonical motion frames at 30 fps, streaming, with a
-declared look-ahead: frame k may depend on audio up to (k + lookahead_frames + 1) / 30 seconds.
+declared look-ahead: frame k may depend on audio up to (k + lookahead_frames + 1) / 30 seconds, and
+exactly on ``lookahead_seconds`` past its start (k / 30 s), which a live run waits for.
 The same seed must give the same frames. ``stream`` keeps its state local to the call, so one
 generator can run several streams (takes) side by side. A generator declares its options once, as
 the dataclass named by its ``Options`` attribute (``convodrive.plugins.options``); the constructor
@@ -36,6 +37,12 @@ class Generator(abc.ABC):
     def lookahead_frames(self) -> int:
         """How many frames of future audio a frame needs; the streaming latency."""
         return 0
+
+    @property
+    def lookahead_seconds(self) -> float:
+        """Audio past frame k's start that frame k needs, at most ``(lookahead_frames + 1) / 30``:
+        a live partner's latency. Generators that need less than whole frames say so here."""
+        return (self.lookahead_frames + 1) / 30.0
 
     @abc.abstractmethod
     def stream(self, chunks: Iterable[AudioChunk], seed: int = 0) -> Iterator[MotionFrame]:

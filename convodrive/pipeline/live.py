@@ -54,7 +54,10 @@ SELF_JITTER = 0.04
 """Room for a streamed voice to arrive unevenly before the feeder would pad it with silence."""
 PARTNER_GRACE = capture.BLOCK_SECONDS + 0.005
 """A partner sample may arrive this long after capture (its block's length plus delivery)."""
-GENERATION_MARGIN = 0.002
+GENERATION_MARGIN = 0.008
+"""Time to make a frame once its audio is in: the assembler's poll (2 ms) and one generator step
+(procedural's costs some two thousand small Python calls: 2-4 ms on a shared 2-core machine).
+At 2 ms, a tenth of the frames of a live run there went out late."""
 RING_SPARE = 1.0
 """Ring room beyond what the look-ahead needs, in seconds: what a CPU too busy to run us for a
 while (a second) costs in neither underruns nor overruns."""
@@ -95,7 +98,7 @@ def live(request: LiveRequest, on_start: Callable[[], None] | None = None) -> Dr
     run_in_own_processes(planned)  # a live run is paced: heavy and hardware backends must not shake it
     if request.partner == "none" and request.self_voice == "none" and request.seconds is None:
         raise UserError("--self none and --partner none: nothing to listen to (give one, or --seconds)")
-    need = (generator.lookahead_frames + 1) / FPS
+    need = generator.lookahead_seconds
     run = _LiveRun(request, need)
     try:
         run.open_audio()
@@ -138,6 +141,7 @@ def live(request: LiveRequest, on_start: Callable[[], None] | None = None) -> Dr
             "name": request.generator,
             "seed": request.seed,
             "lookahead_frames": generator.lookahead_frames,
+            "lookahead_ms": round(1000.0 * generator.lookahead_seconds, 1),
             "options": gen_options.as_dict(),
         },
         "config": str(request.config) if request.config else None,
@@ -223,6 +227,7 @@ class _LiveRun:
             lead=self.self_lead,
             jitter=SELF_JITTER,
             clock_now=self._clock_now,
+            speaker_stopped=self.playback.stopped if self.playback is not None else None,
         )
         self.audio = LiveAudio(
             self.self_line,

@@ -32,6 +32,9 @@ def test_registered_as_plugin():
     # The analysis' 100 ms, plus the anticipation that sees pauses and turn starts coming.
     assert ProceduralGenerator().lookahead_frames == 3 + 9
     assert ProceduralGenerator({"anticipation": 0}).lookahead_frames == 3
+    # Exactly: the features' 1846 samples past a frame's start (115 ms, of the 133 whole frames allow).
+    assert ProceduralGenerator({"anticipation": 0}).lookahead_seconds == pytest.approx(1846 / 16000)
+    assert ProceduralGenerator().lookahead_seconds == pytest.approx((1846 + 4800) / 16000)
 
 
 def test_same_seed_reproduces_and_seeds_differ(gen, audio):
@@ -68,9 +71,11 @@ def test_streaming_in_chunks_equals_offline(audio, chunk, anticipation):
 @pytest.mark.parametrize("k", [86, 94, 129])
 @pytest.mark.parametrize("anticipation", [0.3, 0.0])
 def test_frame_k_ignores_audio_after_its_lookahead(audio, k, anticipation):
-    """Replace everything after (k + lookahead + 1) / 30 s with other sound: frames <= k stay."""
+    """Replace everything after frame k's start + lookahead_seconds with other sound: frames <= k
+    stay. That exact figure (115 ms, within the declared whole frames) is a live partner's latency."""
     gen = ProceduralGenerator({"anticipation": anticipation})
-    cut = int((k + gen.lookahead_frames + 1) * 16000 / 30)
+    assert gen.lookahead_seconds <= (gen.lookahead_frames + 1) / 30
+    cut = int(np.ceil(k * 16000 / 30 + gen.lookahead_seconds * 16000))
     rng = np.random.default_rng(0)
     changed = DyadicAudio(audio.self_voice.copy(), audio.other_voice.copy())
     changed.self_voice[cut:] = rng.normal(0, 0.2, len(audio.self_voice) - cut).astype(np.float32)

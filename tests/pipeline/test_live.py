@@ -88,7 +88,8 @@ def test_mouth_opens_when_the_speaker_says_so(pulse, tmp_path: Path, latency: st
     latency_ms = live["latency_ms"]
     # The run ends when the partner's last sample has been heard: the partner delay after the file.
     assert report["frames"] == pytest.approx((11.5 + latency_ms["partner_delay"] / 1000) * 30, abs=10)
-    assert latency_ms["self_lead"] > 1000.0 * 4 / 30
+    assert latency_ms["self_lead"] > report["generator"]["lookahead_ms"] >= 115.0  # the voice is heard before it plays
+    assert latency_ms["partner_delay"] >= report["generator"]["lookahead_ms"] + 10.0  # and the partner's block, too
     assert latency_ms["partner_capture_to_sent"]["record"]["count"] > 200
     assert report["backends"]["record"]["dispatch_to_sent_ms"]["count"] == report["frames"]
     assert "audio–motion offset at the monitor" in done.stdout
@@ -236,6 +237,39 @@ def test_microphone_that_disappears(pulse, tmp_path: Path) -> None:
     lost_frame = int(lost[0]["time"] * 30)
     assert vad[:lost_frame].max() > 0.5, "the partner was heard while the microphone worked"
     assert np.all(vad[lost_frame + 30 :] == 0), "and is silent after it went away (delay and hangover aside)"
+
+
+def test_speaker_whose_server_stops_answering(pulse, tmp_path: Path) -> None:
+    """The speaker's audio server freezes mid-run (SIGSTOP: it neither plays nor answers, as a hung
+    server does): the run gives the speaker up after 2 s, goes on by the clock with the mouth still
+    following the voice, and ends by itself (it used to wait for the speaker for ever)."""
+    self_wav, _ = dialogue_halves(tmp_path / "in", seconds=8.0)
+    out = tmp_path / "out"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "convodrive.cli.main", "live", "--self", str(self_wav), "--partner", "none",
+         "--play", SPEAKER, "--backend", "record", "--out", str(out)],
+        env={**os.environ, **pulse.env}, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert run.stderr is not None and "live at 30 fps" in run.stderr.readline()
+        time.sleep(1.5)
+        pulse.desk.process.send_signal(signal.SIGSTOP)
+        stdout, stderr = run.communicate(timeout=60)
+    finally:
+        pulse.desk.process.send_signal(signal.SIGCONT)
+        if run.poll() is None:
+            run.kill()
+    assert run.returncode == 0, stderr
+    report = json.loads((out / "run_report.json").read_text())
+    live = report["live"]
+    assert "stopped taking samples" in live["playback"]["stopped"], live["playback"]
+    given_up = [e for e in live["events"] if "stopped taking samples" in e["event"]]
+    assert len(given_up) == 1 and "goes on unheard" in given_up[0]["event"], live["events"]
+    assert report["frames"] == pytest.approx(8 * 30, abs=10), "the run went on to the end of the self voice"
+    assert live["self_voice"]["unheard_ms"] >= 3000.0, live["self_voice"]
+    jaw = load_clip(out / "motion.npz").face[:, JAW]
+    after = int((given_up[0]["time"] + 0.5) * 30)
+    assert np.count_nonzero(jaw[after:] > 0.1) >= 15, "the mouth still follows the unheard voice"
 
 
 def test_ctrl_c_ends_a_run_that_listens_forever(pulse, tmp_path: Path) -> None:

@@ -111,6 +111,7 @@ class LiveAudio:
         self.dropped_early = 0
         self.events: list[dict[str, Any]] = []
         self._lost_reason: str | None = None
+        self.losses = 0
         self._partner_end: int | None = None
         self._stopped = False
         self._next_frame = 0
@@ -142,7 +143,7 @@ class LiveAudio:
         ready = min(ready, self.partner_line.end)
         if end is not None:
             ready = min(ready, end)
-            if self.partner_line.end < end and self._partner_silent():
+            if self.partner_line.end < end and self._partner_end is not None:
                 self.partner_line.fill_to(end)
         position = self.partner_line.taken
         if ready <= position:
@@ -156,15 +157,21 @@ class LiveAudio:
         return self._partner_end is not None or self._lost()
 
     def _lost(self) -> bool:
-        if self._lost_reason is None:
-            self._lost_reason = self.partner.lost()
-            if self._lost_reason is not None:
-                self._event(f"partner input lost: {self._lost_reason}; the partner is silent from here on")
+        reason = self.partner.lost()
+        if reason != self._lost_reason:
+            if reason is not None:
+                self.losses += 1
+                self._late_fill = 0  # the silence from here on is the loss's, not late audio's
+                self._event(f"partner input lost: {reason}; the partner is silent until it comes back")
+            else:
+                self._moved = True  # its next block goes exactly where it belongs, over the silence
+                self._event("partner input back: its audio is heard again")
+            self._lost_reason = reason
         return self._lost_reason is not None
 
     def _take_partner(self) -> None:
         for data, captured in self.partner.pull():
-            if self._lost_reason is not None:  # heard as silence from here on, whatever it sends
+            if self._lost_reason is not None:  # heard as silence while it is lost, whatever it sends
                 continue
             self._note_age(self.monotonic() - captured)
             at = self.time_at(captured)
@@ -223,12 +230,14 @@ class LiveAudio:
             if not len(data):
                 return
         if abs(off) > self._samples(RESYNC_SECONDS) or (off and self._moved):
-            self.resyncs += 1
             if off > 0:
                 line.fill_to(target)
             else:
                 data = data[-off:]
                 captured -= off / ANALYSIS_RATE
+            if not len(data):  # wholly behind the line: the realignment happens with a later block
+                return
+            self.resyncs += 1
         if not len(data):
             return
         start = line.end
@@ -282,5 +291,6 @@ class LiveAudio:
             "late_dropped_ms": round(1000.0 * self.late_dropped / ANALYSIS_RATE, 1),
             "before_start_ms": round(1000.0 * self.dropped_early / ANALYSIS_RATE, 1),
             "lost": self._lost_reason,
+            "losses": self.losses,
             "events": self.events,
         }

@@ -4,8 +4,9 @@ Both hand over captured blocks with the monotonic time their first sample was ca
 microphone's time comes from PortAudio's ``inputBufferAdcTime``: each callback notes "sample n was
 captured at monotonic time m", and, as for playback (``playback``), the median over the last
 callbacks gives a steady mapping that ignores the start-up bursts of an audio server. A
-microphone that goes away (its stream ends, or no callback for ``LOST_SECONDS``) is reported once
-and then heard as silence; the run goes on.
+microphone that goes away (its stream ends, or no callback for ``LOST_SECONDS``) is reported and
+then heard as silence; the run goes on. One that only went quiet (a process starved of CPU, an
+audio server that paused) is taken back as soon as its callbacks come again.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from convodrive.audio.live.devices import Device, portaudio
+from convodrive.audio.live.devices import Device, close_stream, portaudio
 from convodrive.audio.live.ring import SampleRing
 from convodrive.audio.resample import StreamResampler
 from convodrive.audio.source import ANALYSIS_RATE, AudioSource, ChannelMap
@@ -110,6 +111,8 @@ class MicrophoneInput(PartnerInput):
         self._started_at: float | None = None
         self._finished = threading.Event()
         self._lost: str | None = None
+        self._quiet_since: float | None = None
+        """When the microphone was found silent (lost, but it may come back)."""
         self.portaudio_overflows = 0
         self.callbacks = 0
         try:
@@ -160,22 +163,21 @@ class MicrophoneInput(PartnerInput):
         return [(data, captured)]
 
     def lost(self) -> str | None:
+        if self._quiet_since is not None and self._last_call is not None and self._last_call > self._quiet_since:
+            self._lost = self._quiet_since = None  # its callbacks came back
         if self._lost is None and self._started_at is not None:
             quiet = time.monotonic() - (self._last_call or self._started_at)
             if self._finished.is_set():
                 self._lost = f"{self.describe} stopped delivering audio (its stream ended)"
             elif self._last_call is not None and quiet > LOST_SECONDS:
                 self._lost = f"{self.describe} stopped delivering audio (nothing for {LOST_SECONDS:g} s)"
+                self._quiet_since = time.monotonic()
             elif self._last_call is None and quiet > START_SECONDS:
                 self._lost = f"{self.describe} delivered no audio in its first {START_SECONDS:g} s"
         return self._lost
 
     def close(self) -> None:
-        try:
-            self._stream.abort()
-            self._stream.close()
-        except Exception:
-            pass
+        close_stream(self._stream, answering=self.lost() is None)
 
     def report(self) -> dict[str, Any]:
         return {

@@ -6,9 +6,11 @@ needs it and lacks it is one line saying what to install.
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import ctypes.util
 import dataclasses
+import threading
 from typing import Any, Literal
 
 from convodrive.plumbing.errors import UserError
@@ -28,6 +30,32 @@ def portaudio() -> Any:
             "live audio needs the PortAudio library: apt-get install libportaudio2 (scripts/setup.sh does)"
         ) from None
     return sounddevice
+
+
+def close_stream(stream: Any, answering: bool = True) -> None:
+    """Abort and close a PortAudio stream, whatever state it is in.
+
+    A stream whose audio server stopped answering (``answering`` False: a playback that stopped
+    pulling, a microphone that went silent) can block both calls for good, and PortAudio's exit
+    handler after them (it stops the last stream, waiting for it to drain, then terminates the
+    library): a daemon thread tries to close it, and that exit handler is dropped, so the run
+    still ends and writes its report; the operating system reclaims the device."""
+    if answering:
+        _abort(stream)
+        return
+    threading.Thread(target=_abort, args=(stream,), name="close-audio-stream", daemon=True).start()
+    sd = portaudio()
+    handler = getattr(sd, "_exit_handler", None)
+    if handler is not None:
+        atexit.unregister(handler)
+
+
+def _abort(stream: Any) -> None:
+    try:
+        stream.abort()
+        stream.close()
+    except Exception:
+        pass
 
 
 _ALSA_HANDLER: Any = None

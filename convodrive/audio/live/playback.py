@@ -13,6 +13,11 @@ from the first callback that comes at least half a block after the one before (t
 then pulling at its own pace); and a stall (a server that stopped pulling for a while) moves the
 time line, so a gap of several blocks between callbacks forgets the notes before it. The estimate
 is the median of the last ``ANCHORS`` notes.
+
+A stream that stops pulling for ``STOPPED_SECONDS`` (an audio server that hung, a device unplugged)
+is given up (``stopped``): its notes are frozen, so the clock goes on at the pace it had, and the
+self voice feeder paces itself by that clock instead of the speaker; the run goes on unheard
+rather than waiting for a speaker that will not come back.
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from convodrive.audio.live.devices import Device, portaudio
+from convodrive.audio.live.devices import Device, close_stream, portaudio
 from convodrive.audio.live.ring import SampleRing
 from convodrive.plumbing.errors import UserError
 
@@ -37,6 +42,11 @@ MAX_LEAD = 2.0
 STALL_BLOCKS = 5
 """A gap of this many block periods (or of most of the output latency, for servers that call back
 in bursts) between callbacks means the time line moved: start over."""
+STOPPED_SECONDS = 2.0
+"""A paced stream with no callback for this long (or twice its output latency, if longer) has
+stopped: a starved process resumes well within it, a hung audio server does not."""
+START_SECONDS = 5.0
+"""The same for a stream that has not yet settled into its pace (an audio server starting up)."""
 
 
 class Playback:
@@ -58,6 +68,8 @@ class Playback:
         self.stalls = 0
         self.callbacks = 0
         self._closed = threading.Event()
+        self._stopped: str | None = None
+        self._started_at: float | None = None
         self._latency = 0.0
         channels = 1
         try:
@@ -94,8 +106,12 @@ class Playback:
 
     def start(self) -> None:
         self._stream.start()
+        self._started_at = time.monotonic()
 
     def _callback(self, outdata: np.ndarray, frames: int, time_info: Any, status: Any) -> None:
+        if self._stopped is not None:  # given up: the clock runs on the frozen notes
+            outdata.fill(0.0)
+            return
         now = time.monotonic()
         first = self.ring.read_pos
         if len(self._mono) < frames:
@@ -128,6 +144,22 @@ class Playback:
             return None
         return mono - statistics.median(anchors)
 
+    def stopped(self) -> str | None:
+        """Why the stream was given up, once it has stopped pulling samples; None while it plays.
+
+        Before the stream is paced, its server may still be starting (silent for a second or
+        more after the first burst), so it has ``START_SECONDS``. A stream given up before it
+        ever said where it was starts its time line there, on the monotonic clock."""
+        if self._stopped is None and self._started_at is not None:
+            now = time.monotonic()
+            quiet = now - (self._last_call or self._started_at)
+            limit = max(STOPPED_SECONDS, 2.0 * self._latency) if self._paced else START_SECONDS
+            if quiet > limit:
+                if not self._anchors:
+                    self._anchors.append(now - self.ring.read_pos / self.rate)
+                self._stopped = f"--play {self.device.name!r} stopped taking samples (nothing for {quiet:.1f} s)"
+        return self._stopped
+
     def played(self) -> int:
         """Samples the callback has taken from the ring (ahead of the speaker by the latency)."""
         return self.ring.read_pos
@@ -146,11 +178,7 @@ class Playback:
         if self._closed.is_set():
             return
         self._closed.set()
-        try:
-            self._stream.abort()
-            self._stream.close()
-        except Exception:
-            pass
+        close_stream(self._stream, answering=self._stopped is None)
 
     def report(self) -> dict[str, Any]:
         anchors = list(self._anchors)
@@ -164,5 +192,6 @@ class Playback:
             "underrun_ms": round(1000.0 * self.ring.underrun_samples / self.rate, 1),
             "portaudio_underflows": self.portaudio_underflows,
             "stalls": self.stalls,
+            "stopped": self._stopped,
             "timing_noise_ms": round(spread, 3) if spread is not None else None,
         }

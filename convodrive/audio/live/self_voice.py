@@ -212,7 +212,9 @@ class SelfVoiceFeeder(threading.Thread):
 
     ``heard`` gives the position (in ring samples) the speaker has reached, or its stand-in when
     nothing is played (``--self none``). Whatever goes into the ``ring`` also goes, resampled, into
-    ``analysis``; without a ring only the analysis time line advances.
+    ``analysis``; without a ring only the analysis time line advances. ``speaker_stopped`` says why
+    the speaker was given up (``Playback.stopped``): from then on the voice is paced by the clock
+    and goes to the analysis alone, so the mouth and the run go on without it.
     """
 
     def __init__(
@@ -225,6 +227,7 @@ class SelfVoiceFeeder(threading.Thread):
         lead: float,
         jitter: float,
         clock_now: Callable[[], float],
+        speaker_stopped: Callable[[], str | None] | None = None,
     ) -> None:
         super().__init__(name="self-voice", daemon=True)
         self.source = source
@@ -235,6 +238,10 @@ class SelfVoiceFeeder(threading.Thread):
         self.low_water = int(round(lead * rate))
         self.high_water = int(round((lead + jitter) * rate))
         self.clock_now = clock_now
+        self.speaker_stopped = speaker_stopped
+        self.speaker_lost = False
+        self.unheard_samples = 0
+        """Voice queued after the speaker was given up: the analysis had it, nobody heard it."""
         self._to_ring = StreamResampler(source.rate, rate) if source.rate != rate else None
         self._to_analysis = StreamResampler(rate, ANALYSIS_RATE)
         self._pending = np.zeros(0, np.float32)
@@ -269,6 +276,10 @@ class SelfVoiceFeeder(threading.Thread):
             self.source.close()
 
     def _step(self) -> None:
+        if self.ring is not None and self.speaker_stopped is not None:
+            reason = self.speaker_stopped()
+            if reason is not None:
+                self._lose_speaker(reason)
         if len(self._pending):  # the ring was full last time: offer the rest first
             self._commit(np.zeros(0, np.float32))
         if self.ended_at is not None or len(self._pending) or self._space() <= 0:
@@ -286,6 +297,13 @@ class SelfVoiceFeeder(threading.Thread):
             return
         self._top_up(stall=self.ended_at is None)  # the source had nothing just now
 
+    def _lose_speaker(self, reason: str) -> None:
+        """Pace the voice by the clock from now on; the ring (and what it still holds) is left."""
+        self.ring = None
+        self.speaker_lost = True
+        self.heard = lambda: int(max(self.clock_now(), 0.0) * self.rate)
+        self._event(f"{reason}: the self voice goes on unheard, paced by the clock")
+
     def _space(self) -> int:
         if self.ring is None:
             return max(self.heard() + self.high_water - self.written, 0)
@@ -299,6 +317,8 @@ class SelfVoiceFeeder(threading.Thread):
             self._event(f"self voice resumed after {1000.0 * self._stall_len / self.rate:.0f} ms of silence")
         self._voice_last = True
         self.voice_samples += len(data)
+        if self.speaker_lost:
+            self.unheard_samples += len(data)
         self._commit(data)
 
     def _end(self) -> None:
@@ -346,5 +366,6 @@ class SelfVoiceFeeder(threading.Thread):
             "queued_ms": round(1000.0 * self.high_water / self.rate, 1),
             "stalls": self.stalls,
             "stalled_ms": round(1000.0 * self.stalled_samples / self.rate, 1),
+            "unheard_ms": round(1000.0 * self.unheard_samples / self.rate, 1),
             "events": self.events,
         }

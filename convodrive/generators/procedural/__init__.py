@@ -16,7 +16,7 @@ from collections.abc import Iterable, Iterator, Sequence
 
 import numpy as np
 
-from convodrive.audio.analysis import LOOKAHEAD_FRAMES, DyadicAnalyzer, FrameBatch
+from convodrive.audio.analysis import LOOKAHEAD_FRAMES, LOOKAHEAD_SAMPLES, DyadicAnalyzer, FrameBatch
 from convodrive.audio.features import VoiceParams
 from convodrive.audio.phones import pocketsphinx_available
 from convodrive.audio.source import ANALYSIS_RATE, AudioChunk, DyadicAudio, motion_frames_for
@@ -43,7 +43,7 @@ class ProceduralGenerator(Generator):
 
     Options = ProceduralOptions
     options: ProceduralOptions
-    live_options = {"anticipation": 0.0}  # a live partner waits 100 ms for the motion, not 400
+    live_options = {"anticipation": 0.0}  # a live partner waits 115 ms for the motion, not 415
 
     @property
     def anticipation_frames(self) -> int:
@@ -53,6 +53,11 @@ class ProceduralGenerator(Generator):
     @property
     def lookahead_frames(self) -> int:
         return LOOKAHEAD_FRAMES + self.anticipation_frames
+
+    @property
+    def lookahead_seconds(self) -> float:
+        held_back = -(-self.anticipation_frames * ANALYSIS_RATE // 30)  # the cues' frames, rounded up
+        return (LOOKAHEAD_SAMPLES + held_back) / ANALYSIS_RATE
 
     # -- public API ----------------------------------------------------------------------------
     def stream(self, chunks: Iterable[AudioChunk], seed: int = 0) -> Iterator[MotionFrame]:

@@ -41,7 +41,7 @@ class ProceduralOptions(PluginOptions):
         0.3,
         low=0,
         high=1,
-        help="Seconds of look-ahead beyond the audio analysis' 100 ms, to see the partner's pauses (nods) and "
+        help="Seconds of look-ahead beyond the audio analysis' 115 ms, to see the partner's pauses (nods) and "
         "self's turn starts (the in-breath and lean before speaking) coming; the declared look-ahead grows by as "
         "much. 0 gives the lowest latency (live use)",
     )

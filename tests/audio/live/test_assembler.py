@@ -31,9 +31,11 @@ class ScriptedPartner(PartnerInput):
     """Block i holds samples numbered from 1 (sample m is the value m + 1, so 0 is silence),
     captured from ``T0 + i * 5 ms`` and handed over ``age(i)`` seconds after that, in order."""
 
-    def __init__(self, clock: FakeClock, age: list[float], lost_at: float | None = None) -> None:
+    def __init__(
+        self, clock: FakeClock, age: list[float], lost_at: float | None = None, back_at: float | None = None
+    ) -> None:
         self.clock = clock
-        self.lost_at = lost_at
+        self.lost_at, self.back_at = lost_at, back_at
         arrival = T0 + np.arange(len(age)) * BLOCK / ANALYSIS_RATE + np.asarray(age)
         self.arrival = np.maximum.accumulate(arrival)  # a held block holds back those after it
         self.next = 0
@@ -43,7 +45,8 @@ class ScriptedPartner(PartnerInput):
 
     def lost(self) -> str | None:
         gone = self.lost_at is not None and self.clock() >= T0 + self.lost_at
-        return "nothing for 0.5 s" if gone else None
+        back = self.back_at is not None and self.clock() >= T0 + self.back_at
+        return "nothing for 0.5 s" if gone and not back else None
 
     def pull(self) -> list[Captured]:
         out = []
@@ -54,7 +57,9 @@ class ScriptedPartner(PartnerInput):
         return out
 
 
-def run(age: list[float], lost_at: float | None = None) -> tuple[LiveAudio, np.ndarray, dict[int, float]]:
+def run(
+    age: list[float], lost_at: float | None = None, back_at: float | None = None
+) -> tuple[LiveAudio, np.ndarray, dict[int, float]]:
     """Poll the assembler every millisecond of simulated time to ``SECONDS``; the partner's time
     line as the generator got it, and every frame's capture time."""
     clock = FakeClock()
@@ -62,7 +67,7 @@ def run(age: list[float], lost_at: float | None = None) -> tuple[LiveAudio, np.n
     audio = LiveAudio(
         self_voice,
         lambda: None,
-        ScriptedPartner(clock, age, lost_at),
+        ScriptedPartner(clock, age, lost_at, back_at),
         lambda mono: mono - T0,
         DELAY,
         GRACE,
@@ -150,3 +155,21 @@ def test_a_lost_microphone_is_silence_not_late_blocks() -> None:
     assert audio.late_samples == pytest.approx(0.5 * ANALYSIS_RATE, abs=0.01 * ANALYSIS_RATE)
     assert_in_place(line[: int(5.0 * ANALYSIS_RATE)], DELAY)
     assert not np.any(line[int((5.5 + DELAY) * ANALYSIS_RATE) :])
+
+
+def test_a_microphone_that_comes_back_is_heard_again_in_place() -> None:
+    """A stall of 600 ms gets the input declared lost; once it delivers again it is taken back:
+    its audio is placed exactly at capture + delay again, with one resync over the silence, and
+    the report counts the loss and says it is over."""
+    blocks = int(SECONDS * ANALYSIS_RATE / BLOCK) + 40
+    age = [0.006] * blocks
+    age[1000] = 0.6
+    audio, line, _ = run(age, lost_at=5.5, back_at=5.62)
+
+    report = audio.report()
+    assert report["lost"] is None and report["losses"] == 1
+    assert [e["event"].split(":")[0] for e in report["events"]] == ["partner input lost", "partner input back"]
+    assert audio.delay_changes == 0 and audio.resyncs == 1
+    assert_in_place(line[: int(5.0 * ANALYSIS_RATE)], DELAY)
+    assert_in_place(line, DELAY, since=5.7 + DELAY)  # heard again, to the sample
+    assert not np.any(line[int((5.5 + DELAY) * ANALYSIS_RATE) : int((5.6 + DELAY) * ANALYSIS_RATE)])
