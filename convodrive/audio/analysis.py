@@ -33,6 +33,7 @@ from convodrive.audio.phones import BLOCK, PhoneTracker
 from convodrive.audio.source import ANALYSIS_RATE, DyadicAudio
 from convodrive.audio.visemes import NUM_VISEMES, spectral_visemes
 
+
 def _features_due(f: int) -> int:
     """Samples that must have arrived before frame ``f``'s features (and so its phone) are final."""
     return samples_needed(f + TRACK_LOOKAHEAD + 1)

@@ -95,7 +95,8 @@ class PhoneTracker:
 
     def _segments(self) -> list[tuple[int, int, int]]:
         base = self._utt_start
-        return [(base + s.start_frame, base + s.end_frame + 1, _VISEME_OF[s.word]) for s in self._decoder.seg() or ()]  # None before the first hypothesis
+        segments = self._decoder.seg() or ()  # None before the first hypothesis
+        return [(base + s.start_frame, base + s.end_frame + 1, _VISEME_OF[s.word]) for s in segments]
 
     def _end_utterance(self) -> None:
         self._decoder.end_utt()

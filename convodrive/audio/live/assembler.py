@@ -147,6 +147,9 @@ class LiveAudio:
                 self.partner_line.fill_to(end)
         position = self.partner_line.taken
         if ready <= position:
+            if end is not None and position >= end:  # handed over to the end before the end was known
+                empty = np.zeros(0, np.float32)
+                return AudioChunk(position, empty, empty, final=True)
             return None
         final = end is not None and ready >= end
         return AudioChunk(position, self.self_voice.take(ready), self.partner_line.take(ready), final=final)

@@ -14,8 +14,8 @@ then pulling at its own pace); and a stall (a server that stopped pulling for a 
 time line, so a gap of several blocks between callbacks forgets the notes before it. The estimate
 is the median of the last ``ANCHORS`` notes.
 
-A stream that stops pulling for ``STOPPED_SECONDS`` (an audio server that hung, a device unplugged)
-is given up (``stopped``): its notes are frozen, so the clock goes on at the pace it had, and the
+A stream that stops taking samples (an audio server that hung, a device unplugged) is given up
+(``stopped``): its notes are frozen, so the clock goes on at the pace it had, and the
 self voice feeder paces itself by that clock instead of the speaker; the run goes on unheard
 rather than waiting for a speaker that will not come back.
 """
@@ -43,8 +43,10 @@ STALL_BLOCKS = 5
 """A gap of this many block periods (or of most of the output latency, for servers that call back
 in bursts) between callbacks means the time line moved: start over."""
 STOPPED_SECONDS = 2.0
-"""A paced stream with no callback for this long (or twice its output latency, if longer) has
-stopped: a starved process resumes well within it, a hung audio server does not."""
+STOPPED_SHARE = 0.25
+"""A paced stream that took less than this share of real time over ``STOPPED_SECONDS`` (or twice
+its output latency, if longer) has stopped: a process starved for a second still takes half, a
+hung audio server next to nothing (it may still call back now and then)."""
 START_SECONDS = 5.0
 """The same for a stream that has not yet settled into its pace (an audio server starting up)."""
 
@@ -70,6 +72,10 @@ class Playback:
         self._closed = threading.Event()
         self._stopped: str | None = None
         self._started_at: float | None = None
+        self._watch: tuple[float, int] | None = None
+        self._frozen: float | None = None
+        """The anchor the position keeps once the stream is given up."""
+        """(monotonic time, ring samples taken) at the start of the window ``stopped`` judges."""
         self._latency = 0.0
         channels = 1
         try:
@@ -139,26 +145,46 @@ class Playback:
     def position_at(self, mono: float) -> float | None:
         """Seconds of the stream that have left the speaker at monotonic time ``mono``; None until
         the stream has told us where it is."""
+        if self._frozen is not None:  # given up: a late callback cannot move the clock any more
+            return mono - self._frozen
         anchors = list(self._anchors)
         if not anchors:
             return None
         return mono - statistics.median(anchors)
 
     def stopped(self) -> str | None:
-        """Why the stream was given up, once it has stopped pulling samples; None while it plays.
+        """Why the stream was given up, once it has stopped taking samples; None while it plays.
 
-        Before the stream is paced, its server may still be starting (silent for a second or
-        more after the first burst), so it has ``START_SECONDS``. A stream given up before it
-        ever said where it was starts its time line there, on the monotonic clock."""
-        if self._stopped is None and self._started_at is not None:
-            now = time.monotonic()
-            quiet = now - (self._last_call or self._started_at)
-            limit = max(STOPPED_SECONDS, 2.0 * self._latency) if self._paced else START_SECONDS
-            if quiet > limit:
-                if not self._anchors:
-                    self._anchors.append(now - self.ring.read_pos / self.rate)
-                self._stopped = f"--play {self.device.name!r} stopped taking samples (nothing for {quiet:.1f} s)"
+        Stopped means less than ``STOPPED_SHARE`` of real time taken over ``STOPPED_SECONDS`` (a
+        hung server may still call back now and then, each time for a block). Before the stream
+        is paced its server may still be starting, so it has ``START_SECONDS`` to get there. A
+        stream given up before it ever said where it was starts its time line there, on the
+        monotonic clock."""
+        if self._stopped is not None or self._started_at is None:
+            return self._stopped
+        now = time.monotonic()
+        if not self._paced:
+            if now - self._started_at > START_SECONDS:
+                self._give_up(f"it never started playing in {START_SECONDS:g} s", now)
+            return self._stopped
+        taken = self.ring.read_pos
+        if self._watch is None:
+            self._watch = (now, taken)
+            return None
+        since, before = self._watch
+        window = max(STOPPED_SECONDS, 2.0 * self._latency)
+        if now - since >= window:
+            played = (taken - before) / self.rate
+            if played < STOPPED_SHARE * (now - since):
+                self._give_up(f"it took {played:.2f} s of audio in {now - since:.1f} s", now)
+            else:
+                self._watch = (now, taken)
         return self._stopped
+
+    def _give_up(self, why: str, now: float) -> None:
+        anchors = list(self._anchors)
+        self._frozen = statistics.median(anchors) if anchors else now - self.ring.read_pos / self.rate
+        self._stopped = f"--play {self.device.name!r} stopped taking samples ({why})"
 
     def played(self) -> int:
         """Samples the callback has taken from the ring (ahead of the speaker by the latency)."""

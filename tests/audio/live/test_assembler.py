@@ -9,7 +9,7 @@ import pytest
 
 from convodrive.audio.features import frame_edge
 from convodrive.audio.live.assembler import LiveAudio
-from convodrive.audio.live.capture import Captured, PartnerInput
+from convodrive.audio.live.capture import Captured, NoPartner, PartnerInput
 from convodrive.audio.live.timeline import Timeline
 from convodrive.audio.source import ANALYSIS_RATE
 
@@ -173,3 +173,20 @@ def test_a_microphone_that_comes_back_is_heard_again_in_place() -> None:
     assert_in_place(line[: int(5.0 * ANALYSIS_RATE)], DELAY)
     assert_in_place(line, DELAY, since=5.7 + DELAY)  # heard again, to the sample
     assert not np.any(line[int((5.5 + DELAY) * ANALYSIS_RATE) : int((5.6 + DELAY) * ANALYSIS_RATE)])
+
+
+def test_a_voice_that_ends_where_the_generator_already_is_still_ends_the_run() -> None:
+    """The generator took the self voice up to its last sample before the feeder knew it had
+    ended (a voice paced by the clock is read just as fast as it is taken): the next poll is a
+    final, empty chunk, so the generator finishes. It used to wait for audio for ever."""
+    self_voice, ended = Timeline(), []
+    audio = LiveAudio(
+        self_voice, lambda: ended[0] if ended else None, NoPartner(), lambda mono: mono - T0, DELAY, GRACE
+    )
+    self_voice.append(np.ones(16000, np.float32))
+    chunk = audio.poll()
+    assert chunk is not None and chunk.start == 0 and len(chunk) == 16000 and not chunk.final
+    assert audio.poll() is None  # nothing new, and no end yet
+    ended.append(16000)
+    chunk = audio.poll()
+    assert chunk is not None and chunk.final and chunk.start == 16000 and len(chunk) == 0
