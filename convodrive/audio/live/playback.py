@@ -46,7 +46,7 @@ STOPPED_SECONDS = 2.0
 STOPPED_SHARE = 0.25
 """A paced stream that took less than this share of real time over ``STOPPED_SECONDS`` (or twice
 its output latency, if longer) has stopped: a process starved for a second still takes half, a
-hung audio server next to nothing (it may still call back now and then)."""
+hung audio server next to nothing."""
 START_SECONDS = 5.0
 """The same for a stream that has not yet settled into its pace (an audio server starting up)."""
 
@@ -73,9 +73,9 @@ class Playback:
         self._stopped: str | None = None
         self._started_at: float | None = None
         self._watch: tuple[float, int] | None = None
+        """(monotonic time, ring samples taken) at the start of the window ``stopped`` judges."""
         self._frozen: float | None = None
         """The anchor the position keeps once the stream is given up."""
-        """(monotonic time, ring samples taken) at the start of the window ``stopped`` judges."""
         self._latency = 0.0
         channels = 1
         try:
@@ -155,8 +155,8 @@ class Playback:
     def stopped(self) -> str | None:
         """Why the stream was given up, once it has stopped taking samples; None while it plays.
 
-        Stopped means less than ``STOPPED_SHARE`` of real time taken over ``STOPPED_SECONDS`` (a
-        hung server may still call back now and then, each time for a block). Before the stream
+        Stopped means less than ``STOPPED_SHARE`` of real time taken over ``STOPPED_SECONDS``, so
+        a callback now and then does not keep a dead stream alive. Before the stream
         is paced its server may still be starting, so it has ``START_SECONDS`` to get there. A
         stream given up before it ever said where it was starts its time line there, on the
         monotonic clock."""
