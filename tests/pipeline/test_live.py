@@ -243,7 +243,13 @@ def test_speaker_whose_server_stops_answering(pulse, tmp_path: Path) -> None:
     """The speaker's audio server freezes mid-run (SIGSTOP: it neither plays nor answers, as a hung
     server does): the run gives the speaker up after 2 s, goes on by the clock with the mouth still
     following the voice, and ends by itself (it used to wait for the speaker for ever)."""
-    self_wav, _ = dialogue_halves(tmp_path / "in", seconds=8.0)
+    words = speak(
+        "So the head turns toward whoever is talking, the eyes follow, and the mouth keeps moving with "
+        "every word it says, even when nobody is there to hear the voice at all.",
+        rate=150,
+    )
+    self_wav = tmp_path / "self_talks.wav"
+    sf.write(self_wav, np.pad(words, (0, max(0, 8 * 16000 - len(words))))[: 8 * 16000], 16000)  # speech to the end
     out = tmp_path / "out"
     run = subprocess.Popen(
         [sys.executable, "-m", "convodrive.cli.main", "live", "--self", str(self_wav), "--partner", "none",
@@ -269,6 +275,8 @@ def test_speaker_whose_server_stops_answering(pulse, tmp_path: Path) -> None:
     assert live["self_voice"]["unheard_ms"] >= 3000.0, live["self_voice"]
     jaw = load_clip(out / "motion.npz").face[:, JAW]
     after = int((given_up[0]["time"] + 0.5) * 30)
+    speaking = np.flatnonzero(level_db(words, 16000) > -35) * HOP_SECONDS * 30  # frames the voice is loud
+    assert np.count_nonzero(speaking > after) >= 30, "the voice goes on well after the speaker is given up"
     assert np.count_nonzero(jaw[after:] > 0.1) >= 15, "the mouth still follows the unheard voice"
 
 
