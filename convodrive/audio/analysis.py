@@ -40,7 +40,7 @@ def _features_due(f: int) -> int:
 
 
 LOOKAHEAD_SAMPLES = max(_features_due(f) - int(frame_edge(f)) for f in range(3))
-"""Audio past a frame's start that the analysis needs before the frame is final (1845: 115 ms);
+"""Audio past a frame's start that the analysis needs before the frame is final (1846: 115 ms);
 the same for every frame, up to the frame grid's rounding, which repeats every 3 frames."""
 LOOKAHEAD_FRAMES = -(-LOOKAHEAD_SAMPLES * 30 // ANALYSIS_RATE) - 1
 """The same in whole frames, as the generator contract declares it: frame f may depend on audio up to
