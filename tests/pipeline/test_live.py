@@ -194,9 +194,8 @@ def test_self_stream_that_stops_mid_sentence(pulse, tmp_path: Path) -> None:
     assert spoken <= 1.3 + 0.3, spoken  # the mouth stopped with the voice, not later
     assert np.all(jaw[open_frames[-1] + 1 :] < 0.1) and len(jaw) - open_frames[-1] > 60
     heard = np.load(out / "sync.npz")["monitor"].astype(np.float32) / 32768
-    assert np.sum(level_db(heard, 16000) > -35) * HOP_SECONDS == pytest.approx(1.3, abs=0.4), (
-        "the half sentence was played"
-    )
+    loud_sent, loud_heard = (np.sum(level_db(x, 16000) > -35) * HOP_SECONDS for x in (sent, heard))
+    assert loud_heard == pytest.approx(loud_sent, abs=0.1), "the half sentence was played, and only once"
 
 
 def test_microphone_that_disappears(pulse, tmp_path: Path) -> None:
