@@ -99,8 +99,12 @@ class Backend(abc.ABC):
         self.session = session
 
     @abc.abstractmethod
-    def send(self, frame: TargetFrame) -> None:
-        """Apply one frame. Must not block for long in real time; raise on a fault."""
+    def send(self, frame: TargetFrame) -> float | None:
+        """Apply one frame. Must not block for long in real time; raise on a fault.
+
+        May return when (``time.monotonic()``) the frame left for its device, where that is not
+        the moment ``send`` returns (a backend in a child process answers after a round trip); the
+        run's latency figures then end there. None: when it returned."""
 
     def close(self) -> None:  # noqa: B027 (optional hook; most backends have nothing to finish)
         """Finish every output. Called once, even after errors."""

@@ -8,11 +8,11 @@ motion drives an emulated 7-servo Dynamixel head (``convodrive emulate dynamixel
 through the real SDK with the ``procedural`` generator.
 
 - ``partner_latency_ms``: from a partner sample's capture (PortAudio's ADC time) to the servo goal
-  written for the frame it belongs to (p50, p99, max).
+  written on the bus for the frame it belongs to (p50, p99, max).
 - ``offset_ms``: speech onsets heard at the speaker's monitor against the mouth openings sent,
-  over the whole run, and in its first and last minute; ``drift_frames`` is the change from the
-  first minute to the last in frames (30 fps). ``sync_error_ms`` leaves out the generator's own
-  offset (what it does on purpose).
+  over the whole run, and in its first and last minute (``offset_by_minute``). ``sync_error_ms``
+  leaves out the generator's own offset (what it does on purpose); ``drift_frames`` is the change
+  of that clock error from the first minute to the last, in frames (30 fps).
 - Targets: offset within ±33 ms, drift 0 frames over 10 minutes, partner latency <= 150 ms p99.
   The partner's latency is at least the generator's look-ahead: ``procedural`` needs 115 ms
   plus its ``anticipation`` (``convodrive live`` makes it 0 unless ``-G`` says otherwise).
@@ -51,8 +51,15 @@ def repeated_halves(seconds: float, out: Path) -> tuple[Path, Path]:
     return paths
 
 
-def minute_offsets(run_dir: Path) -> dict[str, float | None]:
-    """Median offsets of the first and last minute, from the run's own evidence."""
+def minute_offsets(run_dir: Path) -> dict[str, float | int | None]:
+    """Median offsets of the first and last minute, from the run's own evidence.
+
+    The offset heard at the monitor is the generator's own (its mouth opens a little before or
+    after a speech onset, by design and by content) plus the clock's error. The dialogue repeats,
+    so a minute's own offset depends on which of its sentences the minute holds: over 10 minutes it
+    alternated between -2 and -11 ms here, and so did the heard offset. The drift is taken from
+    the clock's part alone: each minute's heard median less its own median.
+    """
     evidence = np.load(run_dir / "sync.npz")
     monitor = evidence["monitor"].astype(np.float32) / 32768.0
     rate = int(evidence["monitor_rate"])
@@ -60,17 +67,22 @@ def minute_offsets(run_dir: Path) -> dict[str, float | None]:
     heard = np.interp(onsets, evidence["monitor_index"], evidence["monitor_mono"])
     shown = evidence["frame_dispatch_mono"][mouth_onsets(evidence["jaw_open"])]
     figure = pair_onsets(heard, shown)
-    if not len(figure.times):
+    own = pair_onsets(speech_onsets(evidence["self_level_db"]), mouth_onsets(evidence["jaw_open"]) / 30)
+    if not len(figure.times) or not len(own.times):
         return {"first_minute_ms": None, "last_minute_ms": None}
-    start, end = figure.times.min(), figure.times.max()
-    first = figure.offsets_ms[figure.times < start + 60]
-    last = figure.offsets_ms[figure.times > end - 60]
-    return {
-        "first_minute_ms": round(float(np.median(first)), 1),
-        "last_minute_ms": round(float(np.median(last)), 1),
-        "pairs_first_minute": int(len(first)),
-        "pairs_last_minute": int(len(last)),
-    }
+
+    def minute(times: np.ndarray, offsets: np.ndarray, last: bool) -> np.ndarray:
+        return offsets[times > times.max() - 60] if last else offsets[times < times.min() + 60]
+
+    out: dict[str, float | int | None] = {}
+    for name, last in (("first", False), ("last", True)):
+        heard_ms = minute(figure.times, figure.offsets_ms, last)
+        own_ms = minute(own.times, own.offsets_ms, last)
+        out[f"{name}_minute_ms"] = round(float(np.median(heard_ms)), 1)
+        out[f"{name}_minute_own_ms"] = round(float(np.median(own_ms)), 1)
+        out[f"{name}_minute_clock_ms"] = round(float(np.median(heard_ms) - np.median(own_ms)), 1)
+        out[f"pairs_{name}_minute"] = int(len(heard_ms))
+    return out
 
 
 def run(seconds: float, generator_options: list[str]) -> dict[str, object]:
@@ -112,9 +124,8 @@ def run(seconds: float, generator_options: list[str]) -> dict[str, object]:
     info = report["live"]
     offset = info["audio_motion_offset"]
     minutes = minute_offsets(out)
-    drift_ms = None
-    if minutes["first_minute_ms"] is not None and minutes["last_minute_ms"] is not None:
-        drift_ms = minutes["last_minute_ms"] - minutes["first_minute_ms"]
+    first, last = minutes.get("first_minute_clock_ms"), minutes.get("last_minute_clock_ms")
+    drift_ms = None if first is None or last is None else last - first
     latency = info["latency_ms"]["partner_capture_to_sent"].get("dynamixel")
     dxl = report["backends"]["dynamixel"]
     return {

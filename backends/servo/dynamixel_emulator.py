@@ -194,6 +194,8 @@ class DynamixelEmulator(PtyDevice):
         self.servos: dict[int, EmulatedServo] = {i: EmulatedServo(i, spec, clock) for i in ids}
         self.goal_log: list[LoggedWrite] = []
         self.torque_log: list[LoggedWrite] = []  # every accepted Torque_Enable write
+        self.sync_read_times: list[float] = []
+        """When each SYNC_READ came in (emulator clock): a driver's reads, against its goals."""
         self.counters = {
             "packets": 0,
             "replies": 0,
@@ -431,6 +433,7 @@ class DynamixelEmulator(PtyDevice):
                 k += 5 + length
             return []
         if p.inst == dp.SYNC_READ and len(params) >= 4:
+            self.sync_read_times.append(self.clock())
             address, length = _u16(params, 0), _u16(params, 2)
             return [self._read_reply(sid, address, length) for sid in params[4:] if self._answers(sid)]
         if p.inst == dp.BULK_READ:

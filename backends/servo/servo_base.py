@@ -86,6 +86,9 @@ class ServoBackend(Backend):
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._frame_written = threading.Event()
+        """Set when a frame's goals went out; the supervisor's health reads follow it."""
+        self._frame_written_at = -math.inf
         self._ease: Ease | None = None
         self._last_frame_time: float | None = None
         self._port_lost_at: float | None = None
@@ -171,38 +174,46 @@ class ServoBackend(Backend):
         self._thread.start()
 
     # ---------------------------------------------------------------- frames
-    def send(self, frame: TargetFrame) -> None:
+    def send(self, frame: TargetFrame) -> float | None:
+        """Returns when the goals went out on the bus (None if they did not)."""
         if self._closed or self.guard is None:
-            return
+            return None
         with self._lock:
             try:
                 values = self.guard.check(np.asarray(frame.values, dtype=float)[self.columns])
             except Refused as exc:  # not fed to the watchdog: a stream of bad frames ends at neutral
                 self._counts["frames_refused"] += 1  # a fault: the head did not do what the run asked
                 self._event("frame_refused", None, str(exc))
-                return
+                return None
             self.watchdog.feed()
             self._ease = None
             fps = self.session.fps if self.session else TICK_HZ
             prev, self._last_frame_time = self._last_frame_time, frame.time
             step = 1.0 / fps if prev is None else min(max(frame.time - prev, 0.25 / fps), 0.1)
-            self._command(self.guard.limit(values, step))
+            written = self._command(self.guard.limit(values, step))
             self._counts["frames"] += 1
+        if written is not None:
+            self._frame_written_at = written
+            self._frame_written.set()
+        return written
 
-    def _command(self, command: np.ndarray) -> None:
-        """Write one limited command in raw units, timing the bus."""
+    def _command(self, command: np.ndarray) -> float | None:
+        """Write one limited command in raw units, timing the bus; returns when it was written."""
         assert self.guard is not None
         if not self._hw_connected():
             self._counts["frames_unsent"] += 1
-            return
+            return None
         raw = self.guard.to_raw(command)
         t0 = time.perf_counter()
+        written = None
         try:
             self._hw_write(raw)
+            written = time.monotonic()
             self._counts["goal_writes"] += 1
         except PortLost as exc:
             self._port_lost(str(exc))
         self._write_ms.append((time.perf_counter() - t0) * 1e3)
+        return written
 
     def _run_ease(self, seconds: float) -> bool:
         """Blocking ease from the last command to neutral at 30 Hz (open and close); True when the
@@ -258,9 +269,10 @@ class ServoBackend(Backend):
                 self._watch(now)
             if now < next_read:
                 continue
+            next_read = now + self.read_period
+            self._after_next_frame(now)
             # Outside the lock: a health read (with its retries on a noisy bus) must not hold up
             # the frames, which the bus interleaves between its exchanges.
-            next_read = now + self.read_period
             t0 = time.perf_counter()
             try:
                 self._hw_poll()
@@ -272,6 +284,21 @@ class ServoBackend(Backend):
                 self._event("poll_error", None, error_line(exc))
                 continue
             self._read_ms.append((time.perf_counter() - t0) * 1e3)
+
+    def _after_next_frame(self, now: float) -> None:
+        """While frames flow, wait for the next frame's goals before a health read.
+
+        The bus carries one exchange at a time, so a frame that comes during a read waits for the
+        read's replies (a few ms, more from a slow or retried servo). Read at once after a frame,
+        the bus is free again as early as it can be. On a real bus this is what matters: at
+        57600 baud (the Dynamixel X series' factory rate) a health read of seven servos is some
+        200 bytes, 35 ms of wire time, longer than a frame; at 1 Mbaud it is 2 ms. (The emulator's
+        pseudo-terminal has no wire time, so ``bench/bench_live.py`` cannot show the difference.)"""
+        period = 1.0 / (self.session.fps if self.session else TICK_HZ)
+        if now - self._frame_written_at > 2 * period:
+            return  # no frames (a file's end, a watchdog's ease): read on the timer
+        self._frame_written.clear()
+        self._frame_written.wait(2 * period)
 
     def _watch(self, now: float) -> None:
         guard = self.guard

@@ -21,7 +21,7 @@ class ServoOptions(RobotOptions):
 
     port: str = option("", help="Serial port, e.g. /dev/ttyUSB0 (or the path `convodrive emulate` prints)")
     read_rate: float = option(
-        10.0, low=0.5, high=100, help="Health reads per second (position, temperature, voltage, errors)"
+        10.0, low=0.5, high=100, help="Health reads per second (position, temperature, voltage, errors), after a frame"
     )
     watchdog_s: float = option(0.5, low=0.05, high=10, help="Ease to neutral when no frame came for this long (s)")
     ease_s: float = option(
@@ -109,7 +109,7 @@ class MaestroJoint(PluginOptions):
 
 @dataclasses.dataclass(frozen=True)
 class MaestroOptions(ServoOptions):
-    read_rate: float = option(5.0, low=0.5, high=100, help="Error and position reads per second")
+    read_rate: float = option(5.0, low=0.5, high=100, help="Error and position reads per second, after a frame")
     baudrate: int = option(115200, low=300, high=250_000, help="Serial speed (the USB command port ignores it)")
     device: int | None = option(
         None, low=0, high=127, help="Pololu protocol device number; default: the compact protocol"

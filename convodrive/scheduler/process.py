@@ -82,8 +82,11 @@ class ProcessBackend(Backend):
                 pass  # the open error is the one to report
             raise
 
-    def send(self, frame: TargetFrame) -> None:
-        self._call("send", (frame,), CALL_TIMEOUT_S)
+    def send(self, frame: TargetFrame) -> float | None:
+        """The child's answer is its backend's: when the frame left (the same clock: ``CLOCK_MONOTONIC``
+        is system-wide), so the way back through the pipe is not counted as the frame's latency."""
+        left = self._call("send", (frame,), CALL_TIMEOUT_S)
+        return left if isinstance(left, float) else None
 
     def health(self) -> dict[str, Any]:
         if self._final is not None:

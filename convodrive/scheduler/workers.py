@@ -84,10 +84,10 @@ class BackendWorker(threading.Thread):
             start = time.perf_counter()
             self._frame = item.index
             try:
-                backend.send(item)
+                left = backend.send(item)
                 consecutive = 0
                 self.stats.sent += 1
-                self._sent(item)
+                self._sent(item, left)
             except Exception as exc:  # a backend fault degrades this backend only
                 consecutive += 1
                 self.stats.errors += 1
@@ -103,10 +103,10 @@ class BackendWorker(threading.Thread):
                 self.priority.tick()
             self._watch_health()
 
-    def _sent(self, frame: TargetFrame) -> None:
+    def _sent(self, frame: TargetFrame, left: float | None) -> None:
         if not frame.dispatched:
             return
-        done = time.monotonic()
+        done = time.monotonic() if left is None else left
         self.stats.dispatch_to_sent_ms.add(1000.0 * (done - frame.dispatched))
         if self._on_sent is not None:
             self._on_sent(self.stats.name, frame, done)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -266,3 +267,27 @@ def test_nothing_changes_priority_in_an_offline_run() -> None:
     before = os.sched_getscheduler(0)
     with HelperPriority(False, "generator") as helper:
         assert not helper.active and os.sched_getscheduler(0) == before
+
+
+def test_a_frame_is_timed_to_when_it_left_not_to_when_send_returned(tmp_path: Path) -> None:
+    """A backend may say when its frame left for the device (a child process answers after a round
+    trip through a pipe): the dispatch-to-sent figure and ``on_sent`` end there."""
+    lag = 0.03
+    heard: list[float] = []
+
+    class Answering(CountingBackend):
+        def send(self, frame):
+            super().send(frame)
+            left = time.monotonic()
+            time.sleep(lag)  # the way back, which is not the frame's latency
+            return left
+
+    backend = Answering({"name": "answering"})
+    result = Scheduler(
+        neutral_frames(20), _open([backend], tmp_path, False), clock=MonotonicClock(),
+        on_sent=lambda name, frame, done: heard.append(time.monotonic() - done),
+    ).run()  # fmt: skip
+    figure = next(s for s in result.backends if s.name == "answering").dispatch_to_sent_ms.summary()
+    assert figure is not None and figure["count"] >= 10
+    assert figure["p50"] < 1000 * lag / 2, figure
+    assert len(heard) == figure["count"] and min(heard) >= lag * 0.9, "on_sent gets the time the frame left"

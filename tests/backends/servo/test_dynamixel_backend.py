@@ -89,6 +89,30 @@ def test_trajectory_reaches_the_wire_within_one_tick() -> None:
     assert report["servos"]["neck_pan"]["temperature_c"] == 30 and report["bus_ms"]["write"]["n"] >= len(frames)
 
 
+def test_health_reads_come_right_after_a_frames_goals() -> None:
+    """The bus carries one exchange at a time, so a frame due during a health read waits for the
+    read's replies. While frames flow, the backend reads right after a frame's goals went out, and
+    ``send`` says when they did."""
+    frames = trajectory(60)
+    period = 1 / FPS
+    with start_emulated_head() as emu:
+        backend = DynamixelBackend(options(emu.port, read_rate=10))
+        backend.open(SPEC, session())
+        start = time.monotonic()
+        for i, values in enumerate(frames):
+            before = time.monotonic()
+            left = backend.send(TargetFrame(i, i / FPS, values, ()))
+            assert left is not None and before <= left <= time.monotonic()
+            time.sleep(max(0.0, start + (i + 1) / FPS - time.monotonic()))
+        end = time.monotonic()
+        backend.close()
+    goals = np.array(sorted({g.time for g in emu.goal_log if g.inst == dp.SYNC_WRITE and start <= g.time <= end}))
+    reads = np.array([t for t in emu.sync_read_times if goals[0] < t < end])
+    assert len(reads) >= 10, "about ten reads a second"
+    since_goals = reads - goals[np.searchsorted(goals, reads) - 1]
+    assert np.median(since_goals) < period / 4 and np.mean(since_goals < period / 2) >= 0.9, since_goals
+
+
 def test_close_eases_to_neutral_then_torque_off() -> None:
     with start_emulated_head() as emu:
         backend = DynamixelBackend(options(emu.port))
@@ -274,7 +298,9 @@ def test_a_servo_childs_bus_threads_share_its_real_time_priority() -> None:
         backend = ProcessBackend(DynamixelBackend(options(emu.port)))
         backend.open(SPEC, session())
         try:
-            backend.send(TargetFrame(0, 0.0, SPEC.neutral.copy(), ()))
+            before = time.monotonic()
+            left = backend.send(TargetFrame(0, 0.0, SPEC.neutral.copy(), ()))
+            assert left is not None and before < left < time.monotonic(), "the child says when the goals left"
             assert backend._process is not None
             threads = [int(t) for t in os.listdir(f"/proc/{backend._process.pid}/task")]
             policies = [
