@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from convodrive.models.probtalk import ProbTalk, ProbTalkConfig, maskgit_sample, sinusoid
+from convodrive.motion import representation as rep
 from convodrive.neural.maskgit import draw_uniforms, remask_count
 from convodrive.neural.maskgit import maskgit_sample as numpy_maskgit_sample
 from tests.conftest import require
@@ -156,6 +157,34 @@ def test_the_pq_vae_encodes_unseen_motion_through_its_codes() -> None:
     mean_error = float((unseen - unseen.mean(dim=(0, 1))).abs().mean())
     assert error < 0.9 * mean_error, (error, mean_error)  # 1.0 when codes are ignored
     assert float((other - decoded).abs().mean()) > 0.3 * mean_error
+
+
+def test_the_vq_stage_reports_the_fd_g_its_reconstruction_allows() -> None:
+    """The vq stage's validation scores its reconstruction as ``eval compare`` scores generated
+    motion: 0 when it gives the motion back, the motion's own spread when it gives a constant, and
+    channels a corpus lacks are left out."""
+    from convodrive.training.recipes.probtalk import reconstruction_fd
+
+    batch = _batch(8)
+    face = rep.GROUPS["face"]
+    missing = face.start + 3
+    batch["mask"][..., missing] = 0
+    batch["motion"][..., missing] = 100.0 * torch.randn(8, 48)  # what a missing channel holds does not count
+
+    def flat(motion: torch.Tensor) -> torch.Tensor:
+        return motion.mean(dim=(0, 1), keepdim=True).expand_as(motion)
+
+    perfect = reconstruction_fd(lambda motion: motion, batch)
+    constant = reconstruction_fd(flat, batch)
+    assert set(perfect) == {"recon_fd_g_face", "recon_fd_g_body"}
+    assert max(perfect.values()) < 1e-6
+    kept = [c for c in range(face.start, face.stop) if c != missing]
+    spread = float(batch["motion"][..., kept].flatten(0, 1).double().var(dim=0).sum())
+    assert constant["recon_fd_g_face"] == pytest.approx(spread, rel=0.01)
+    model = ProbTalk(TINY, DIM, BANDS, SPEAKERS, stage="vq").eval()
+    with torch.no_grad():
+        untrained = reconstruction_fd(lambda motion: model.vq(motion)[0], batch)
+    assert all(math.isfinite(v) and v > 0.1 for v in untrained.values())
 
 
 def test_codebooks_follow_the_latents_and_no_code_stays_dead() -> None:

@@ -19,7 +19,7 @@ logits, run once per MaskGIT pass); then ``refiner``.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from convodrive.eval.distribution import fd_g
 from convodrive.models.probtalk import STAGES, ProbTalk, ProbTalkConfig, masked_l1
 from convodrive.motion import representation as rep
 from convodrive.plumbing.errors import UserError
@@ -193,7 +194,12 @@ class ProbTalkRecipe(Recipe):
     def validate(
         self, model: torch.nn.Module, data: TrainingData, config: ProbTalkConfig, stage: str
     ) -> dict[str, float]:
-        return self.mean_validation_figures(model, data, examples=128)
+        figures = self.mean_validation_figures(model, data, examples=128)
+        if stage == "vq" and data.val is not None and len(data.val):
+            assert isinstance(model, ProbTalk)
+            batch = data.val.batch(np.arange(min(len(data.val), 128)))
+            figures.update(reconstruction_fd(lambda motion: model.vq(motion)[0], batch))
+        return figures
 
     # -- export ----------------------------------------------------------------------------------
     def export_graphs(
@@ -215,6 +221,26 @@ class ProbTalkRecipe(Recipe):
 
 
 # ----------------------------------------------------------------------------------- the stages
+def reconstruction_fd(reconstruct: Callable[[torch.Tensor], torch.Tensor], batch: Batch) -> dict[str, float]:
+    """FD_g of face and body for a batch's motion passed through ``reconstruct`` (the PQ-VAE's
+    encode and decode), on the channels every window has.
+
+    ``eval compare`` scores generated motion by these figures, and no predictor can do better
+    than the PQ-VAE's own reconstruction: this bounds every later stage, at the vq stage's cost."""
+    motion, mask = batch["motion"], batch["mask"]
+    recon = reconstruct(motion * mask)
+    kept = mask.amin(dim=0).flatten().bool()
+    out = {}
+    for part in ("face", "body"):
+        cols = torch.arange(rep.GROUPS[part].start, rep.GROUPS[part].stop)
+        cols = cols[kept[cols]]
+        if len(cols):
+            real = motion[..., cols].flatten(0, 1).double().numpy()
+            made = recon[..., cols].flatten(0, 1).double().numpy()
+            out[f"recon_fd_g_{part}"] = fd_g([made], [real])
+    return out
+
+
 def crop(batch: Batch, config: ProbTalkConfig, generator: torch.Generator) -> Batch:
     """The batch cut to one random length (half the time the whole window), a multiple of a token."""
     frames = batch["motion"].shape[1]
