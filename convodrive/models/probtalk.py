@@ -54,6 +54,8 @@ class ProbTalkConfig:
     commitment: float = 0.25
     ema_decay: float = 0.99
     velocity_weight: float = 1.0
+    vq_loss: str = "l1"
+    """Reconstruction and velocity error of the PQ-VAE: ``l1`` (the paper's) or ``l2`` (squared)."""
     # conditions
     dyadic: bool = True
     """Hear the partner's audio as a second stream (False: self only, to measure what it adds)."""
@@ -100,6 +102,8 @@ class ProbTalkConfig:
             raise ValueError("vq_channels and context_channels need the same length, at least 2")
         if self.width % self.heads or self.refiner_width % self.refiner_heads:
             raise ValueError("width must be a multiple of heads (predictor and refiner)")
+        if self.vq_loss not in ("l1", "l2"):
+            raise ValueError(f"vq_loss must be 'l1' or 'l2', got {self.vq_loss!r}")
         if self.position not in ("2d", "1d"):
             raise ValueError(f"position must be '2d' or '1d', got {self.position!r}")
         f = self.frames_per_token
@@ -336,20 +340,28 @@ class PQVAE(nn.Module):
     def loss(
         self, motion: torch.Tensor, mask: torch.Tensor, generator: torch.Generator | None = None
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """The paper's L1 reconstruction + L1 velocity + beta * commitment; ``mask`` (B, 1, D) skips
-        the channels a corpus lacks."""
+        """The paper's reconstruction + velocity error + beta * commitment; ``mask`` (B, 1, D) skips
+        the channels a corpus lacks. The paper's error is L1; ``vq_loss="l2"`` squares it instead."""
         recon, codes, commitment = self(motion * mask, generator)
-        rec = masked_l1(recon, motion, mask)
-        vel = masked_l1(recon.diff(dim=1), motion.diff(dim=1), mask)
+        error = masked_l1 if self.config.vq_loss == "l1" else masked_l2
+        rec = error(recon, motion, mask)
+        vel = error(recon.diff(dim=1), motion.diff(dim=1), mask)
         total = rec + self.config.velocity_weight * vel + self.config.commitment * commitment
         used = sum(codes[..., g].unique().numel() for g in range(codes.shape[-1])) / codes.shape[-1]
-        return total, {"l1": rec, "velocity": vel, "commitment": commitment, "codes_used": torch.tensor(float(used))}
+        figures = {self.config.vq_loss: rec, "velocity": vel, "commitment": commitment}
+        return total, {**figures, "codes_used": torch.tensor(float(used))}
 
 
 def masked_l1(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """Mean |a - b| over the entries ``mask`` (broadcast to a's shape) keeps."""
     weight = mask.expand_as(a)
     return ((a - b).abs() * weight).sum() / weight.sum().clamp(min=1.0)
+
+
+def masked_l2(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean (a - b)^2 over the entries ``mask`` keeps."""
+    weight = mask.expand_as(a)
+    return ((a - b).square() * weight).sum() / weight.sum().clamp(min=1.0)
 
 
 # ---------------------------------------------------------------------------------- transformer

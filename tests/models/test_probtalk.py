@@ -128,6 +128,26 @@ def test_each_stage_loss_falls_on_a_tiny_batch() -> None:
     assert last < 0.8 * first
 
 
+def test_the_pq_vae_error_is_l1_or_its_square() -> None:
+    """``vq_loss``: the paper's L1, or squared error (which follows a two-valued channel's mean
+    where L1 settles on its median: a blink channel's median is an open eye)."""
+    import dataclasses
+
+    x = _batch()
+    x["mask"][..., 7] = 0
+    for kind in ("l1", "l2"):
+        torch.manual_seed(0)
+        model = ProbTalk(dataclasses.replace(TINY, vq_loss=kind), DIM, BANDS, SPEAKERS, stage="vq").eval()
+        with torch.no_grad():
+            _, figures = model.vq.loss(x["motion"], x["mask"])
+            recon = model.vq(x["motion"] * x["mask"])[0]
+        error = (recon - x["motion"])[..., torch.arange(DIM) != 7]
+        expected = error.abs().mean() if kind == "l1" else error.square().mean()
+        assert float(figures[kind]) == pytest.approx(float(expected), rel=1e-5)
+    with pytest.raises(ValueError, match="vq_loss"):
+        dataclasses.replace(TINY, vq_loss="huber").check()
+
+
 def _low_rank_motion(b: int, seed: int, t: int = 48) -> torch.Tensor:
     """Windows of three smooth signals (random phase and speed) spread over every channel by one
     fixed mixing: motion a few codes can describe, as a body's joints move together."""
