@@ -73,7 +73,7 @@ def test_every_frame_reaches_a_client(tmp_path: Path, talk: Path, fmt: str) -> N
     finally:
         if run.poll() is None:
             run.kill()
-    assert run.returncode == 0
+    assert run.returncode == 0, run.stderr.read()[-3000:] if run.stderr else ""
     assert hello["type"] == "hello" and hello["format"] == fmt and len(hello["joints"]) == 55
     frames = [decode_binary(m, hello) if fmt == "binary" else json.loads(m) for m in messages]
     if fmt == "binary":
