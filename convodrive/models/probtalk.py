@@ -56,6 +56,10 @@ class ProbTalkConfig:
     velocity_weight: float = 1.0
     vq_loss: str = "l1"
     """Reconstruction and velocity error of the PQ-VAE: ``l1`` (the paper's) or ``l2`` (squared)."""
+    balance_parts: bool = False
+    """Weigh every part of the feature layout alike in the PQ-VAE's and the refiner's error, however many
+    channels it has (False: every channel alike, the paper's). Channel-alike lets 180 hand channels
+    outvote 12 of the head: the codes go to the hands and the head is left at its mean."""
     # conditions
     dyadic: bool = True
     """Hear the partner's audio as a second stream (False: self only, to measure what it adds)."""
@@ -338,14 +342,20 @@ class PQVAE(nn.Module):
         return self.decoder(quantised), codes, commitment
 
     def loss(
-        self, motion: torch.Tensor, mask: torch.Tensor, generator: torch.Generator | None = None
+        self,
+        motion: torch.Tensor,
+        mask: torch.Tensor,
+        generator: torch.Generator | None = None,
+        weight: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """The paper's reconstruction + velocity error + beta * commitment; ``mask`` (B, 1, D) skips
-        the channels a corpus lacks. The paper's error is L1; ``vq_loss="l2"`` squares it instead."""
+        the channels a corpus lacks, ``weight`` (D,) weighs the others (None: alike). The paper's
+        error is L1; ``vq_loss="l2"`` squares it instead."""
         recon, codes, commitment = self(motion * mask, generator)
         error = masked_l1 if self.config.vq_loss == "l1" else masked_l2
-        rec = error(recon, motion, mask)
-        vel = error(recon.diff(dim=1), motion.diff(dim=1), mask)
+        counted = mask if weight is None else mask * weight
+        rec = error(recon, motion, counted)
+        vel = error(recon.diff(dim=1), motion.diff(dim=1), counted)
         total = rec + self.config.velocity_weight * vel + self.config.commitment * commitment
         used = sum(codes[..., g].unique().numel() for g in range(codes.shape[-1])) / codes.shape[-1]
         figures = {self.config.vq_loss: rec, "velocity": vel, "commitment": commitment}
@@ -353,7 +363,7 @@ class PQVAE(nn.Module):
 
 
 def masked_l1(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Mean |a - b| over the entries ``mask`` (broadcast to a's shape) keeps."""
+    """Mean |a - b| over the entries ``mask`` (broadcast to a's shape) keeps, weighted by its values."""
     weight = mask.expand_as(a)
     return ((a - b).abs() * weight).sum() / weight.sum().clamp(min=1.0)
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from convodrive.models.probtalk import ProbTalk, ProbTalkConfig, maskgit_sample, sinusoid
+from convodrive.models.probtalk import ProbTalk, ProbTalkConfig, maskgit_sample, masked_l2, sinusoid
 from convodrive.motion import representation as rep
 from convodrive.neural.maskgit import draw_uniforms, remask_count
 from convodrive.neural.maskgit import maskgit_sample as numpy_maskgit_sample
@@ -146,6 +146,46 @@ def test_the_pq_vae_error_is_l1_or_its_square() -> None:
         assert float(figures[kind]) == pytest.approx(float(expected), rel=1e-5)
     with pytest.raises(ValueError, match="vq_loss"):
         dataclasses.replace(TINY, vq_loss="huber").check()
+
+
+def test_balanced_parts_weigh_a_small_part_as_much_as_a_large_one() -> None:
+    """``balance_parts``: the same error confined to the head's 12 channels or to the hands' 180
+    costs the PQ-VAE alike (channel-alike, the hands' costs 15 times more), and the loss keeps
+    its scale (a mean weight of 1)."""
+    import dataclasses
+
+    from convodrive.training.recipes.probtalk import part_weights
+
+    assert part_weights(TINY) is None
+    balanced = dataclasses.replace(TINY, balance_parts=True)
+    weight = part_weights(balanced)
+    assert weight is not None and weight.shape == (DIM,)
+    assert float(weight.mean()) == pytest.approx(1.0)
+    totals = {name: float(weight[part].sum()) for name, part in rep.PARTS.items()}
+    assert totals["vad"] == pytest.approx(2.0)
+    motion_totals = [v for name, v in totals.items() if name != "vad"]
+    assert max(motion_totals) == pytest.approx(min(motion_totals))
+
+    torch.manual_seed(0)
+    model = ProbTalk(balanced, DIM, BANDS, SPEAKERS, stage="vq").eval()
+    motion, mask = _batch()["motion"], torch.ones(4, 1, DIM)
+    with torch.no_grad():
+        recon = model.vq(motion)[0]
+
+    def error_of(part: slice, w: torch.Tensor | None) -> float:
+        # the motion moved away from its reconstruction by 1 on one part's channels only
+        target = recon.clone()
+        target[..., part] += 1.0
+        return float(masked_l2(recon, target, mask if w is None else mask * w))
+
+    head, hands = rep.PARTS["head"], rep.PARTS["hands"]
+    assert error_of(head, weight) == pytest.approx(error_of(hands, weight), rel=1e-5)
+    assert error_of(hands, None) == pytest.approx(15 * error_of(head, None), rel=1e-5)
+    only_head = torch.zeros(DIM)
+    only_head[head] = 1.0
+    with torch.no_grad():
+        _, figures = model.vq.loss(motion, mask, weight=only_head)
+    assert float(figures["l1"]) == pytest.approx(float((recon - motion)[..., head].abs().mean()), rel=1e-5)
 
 
 def _low_rank_motion(b: int, seed: int, t: int = 48) -> torch.Tensor:
