@@ -80,13 +80,6 @@ class ProbTalkConfig:
     refiner_feedforward: int = 2048
     refiner_noise: float = 0.05
     """Noise added to the VQ reconstructions the refiner learns to refine (the reference's 0.05)."""
-    refiner_sampling: int = 0
-    """0: the paper's refiner, a regression trained with L1, which returns the mean of the detail
-    quantisation lost, so the refined motion keeps the reconstruction's shrunken spread. N > 0: the
-    refiner also hears N channels of noise, drawn per token and interpolated to frames (smooth, so
-    the detail it samples moves as slowly as a token), and learns by the energy score of two draws
-    (a proper scoring rule: it is least for samples of the true distribution), so that it samples
-    that detail instead of averaging it away."""
     speaker_dim: int = 512
     """Size of the speaker embedding that modulates every sub-layer."""
     dropout: float = 0.1
@@ -381,23 +374,6 @@ def masked_l2(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> torch.Ten
     return ((a - b).square() * weight).sum() / weight.sum().clamp(min=1.0)
 
 
-def energy_score(
-    first: torch.Tensor, second: torch.Tensor, truth: torch.Tensor, weight: torch.Tensor
-) -> torch.Tensor:
-    """The energy score of two samples against the truth, frame by frame: E|X - y| - E|X - X'|/2 with
-    |.| the L2 norm over the channels ``weight`` (broadcast to the shape) weighs, averaged over the
-    frames it leaves any weight. A proper scoring rule: its expectation is least when the samples
-    come from the truth's distribution, so it rewards the spread that an L1 or L2 loss averages away."""
-    weight = weight.expand_as(truth)
-
-    def distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-        return ((a - b).square() * weight).sum(-1).add(1e-8).sqrt()
-
-    score = 0.5 * (distance(first, truth) + distance(second, truth)) - 0.5 * distance(first, second)
-    counted = (weight.sum(-1) > 0).float()
-    return (score * counted).sum() / counted.sum().clamp(min=1.0)
-
-
 # ---------------------------------------------------------------------------------- transformer
 class SelfAttention(nn.Module):
     def __init__(self, width: int, heads: int, dropout: float) -> None:
@@ -673,7 +649,7 @@ class Refiner(nn.Module):
         self.config = config
         width = config.refiner_width
         streams = 2 if config.dyadic else 1
-        self.motion_in = nn.Linear(dim + 1 + config.refiner_sampling, width)
+        self.motion_in = nn.Linear(dim + 1, width)
         self.audio_in = nn.Sequential(
             nn.Conv1d(streams * bands + 1, width, 3, padding=1), ChannelNorm(width), nn.LeakyReLU(0.1)
         )
@@ -692,25 +668,13 @@ class Refiner(nn.Module):
         nn.init.zeros_(self.head.bias)
 
     def forward(
-        self,
-        motion: torch.Tensor,
-        audio: torch.Tensor,
-        known_mask: torch.Tensor,
-        speaker: torch.Tensor,
-        noise: torch.Tensor | None = None,
+        self, motion: torch.Tensor, audio: torch.Tensor, known_mask: torch.Tensor, speaker: torch.Tensor
     ) -> torch.Tensor:
-        """``noise`` (B, tokens, refiner_sampling) standard normal draws, one row per token; needed
-        when ``refiner_sampling`` is on, ignored when it is off."""
         t = torch.arange(motion.shape[1], device=motion.device)
         pe = sinusoid(t, self.config.refiner_width)
         memory = self.audio_in(torch.cat([audio_streams(audio, self.config.dyadic), known_mask.transpose(1, 2)], dim=1))
         memory = self.drop(memory.transpose(1, 2) + pe)
-        inputs = [motion, known_mask]
-        if self.config.refiner_sampling:
-            if noise is None:
-                raise ValueError("this refiner samples: it needs noise (B, tokens, refiner_sampling)")
-            inputs.append(F.interpolate(noise.transpose(1, 2), size=motion.shape[1], mode="linear").transpose(1, 2))
-        x = self.drop(self.motion_in(torch.cat(inputs, dim=-1)) + pe)
+        x = self.drop(self.motion_in(torch.cat([motion, known_mask], dim=-1)) + pe)
         refined = motion + self.head(self.transformer(x, *self.transformer.prepare(memory, speaker)))
         return known_mask * motion + (1 - known_mask) * refined
 

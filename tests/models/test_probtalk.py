@@ -128,51 +128,6 @@ def test_each_stage_loss_falls_on_a_tiny_batch() -> None:
     assert last < 0.8 * first
 
 
-def test_the_energy_score_prefers_samples_of_the_truth_to_its_mean() -> None:
-    """The sampling refiner's loss: samples drawn from the truth's own distribution score better
-    than its mean, where L1 prefers the mean (the spread an L1 refiner averages away); equal
-    samples equal to the truth score 0, and frames of zero weight do not count."""
-    from convodrive.models.probtalk import energy_score
-
-    g = torch.Generator().manual_seed(0)
-    truth = torch.randn(64, 48, 20, generator=g)
-    first, second = torch.randn(2, 64, 48, 20, generator=g)
-    mean = torch.zeros_like(truth)
-    weight = torch.ones(1, 1, 20)
-    assert float(energy_score(first, second, truth, weight)) < 0.8 * float(energy_score(mean, mean, truth, weight))
-    assert float((first - truth).abs().mean()) > 1.2 * float((mean - truth).abs().mean())
-    assert float(energy_score(truth, truth, truth, weight)) < 1e-3
-    some_frames = torch.ones(64, 48, 1)
-    some_frames[:, 24:] = 0
-    moved = truth.clone()
-    moved[:, 24:] += 100.0
-    assert float(energy_score(moved, moved, truth, some_frames)) < 1e-3
-
-
-def test_a_sampling_refiner_draws_other_detail_from_other_noise_and_learns() -> None:
-    import dataclasses
-
-    from convodrive.training.recipes.probtalk import refiner_loss
-
-    config = dataclasses.replace(TINY, refiner_sampling=4, balance_parts=True)
-    torch.manual_seed(0)
-    model = ProbTalk(config, DIM, BANDS, SPEAKERS, stage="refiner")
-    x = _batch()
-    known = torch.zeros(4, 48, 1)
-    known[:, :12] = 1
-    with pytest.raises(ValueError, match="needs noise"):
-        model.refiner(x["motion"], x["audio"], known, x["speaker"])
-    g = torch.Generator().manual_seed(1)
-    first, last = _fit(model, lambda: refiner_loss(model, x, known, g)[0])
-    assert last < 0.8 * first
-    model.eval()
-    noise = torch.randn(2, 4, 6, 4, generator=g)  # two draws, 6 tokens of 8 frames
-    with torch.no_grad():
-        a, b = (model.refiner(x["motion"], x["audio"], known, x["speaker"], n) for n in noise)
-    assert torch.equal(a[:, :12], x["motion"][:, :12]) and torch.equal(b[:, :12], x["motion"][:, :12])
-    assert float((a[:, 12:] - b[:, 12:]).abs().mean()) > 1e-3
-
-
 def test_the_pq_vae_error_is_l1_or_its_square() -> None:
     """``vq_loss``: the paper's L1, or squared error (which follows a two-valued channel's mean
     where L1 settles on its median: a blink channel's median is an open eye)."""

@@ -7,8 +7,7 @@ Each window of audio becomes motion in four graph calls and a NumPy loop:
 2. ``predictor_step`` (once per MaskGIT pass, T passes): token ids + that memory -> logits; the
    sampling loop between passes is ``convodrive.neural.maskgit`` (NumPy);
 3. ``vq_decoder``: codes -> coarse motion; the known frames are copied in;
-4. ``refiner``: coarse motion + audio + known mask -> the window's motion (a sampling refiner
-   also takes a row of noise per token, drawn from each take's generator).
+4. ``refiner``: coarse motion + audio + known mask -> the window's motion.
 
 K takes (``--samples K``) are the batch of the same calls. Windows overlap by ``context`` frames:
 a window continues from the previous window's last frames, which it is given as known motion
@@ -112,8 +111,6 @@ class ProbTalkGenerator(LearnedGenerator):
         self.step = self.graph("predictor_step")
         self.decoder = self.graph("vq_decoder")
         self.refiner = self.graph("refiner") if self.refine else None
-        self.refiner_noise = int(arch.get("refiner_sampling", 0))
-        """Noise channels of a sampling refiner (0: the paper's, which takes none)."""
         self.windows = 0
 
     def window_plan(self) -> WindowPlan:
@@ -152,11 +149,7 @@ class ProbTalkGenerator(LearnedGenerator):
         coarse = self.decoder(codes=codes)["motion"]
         motion = known_mask * known + (1 - known_mask) * coarse
         if self.refiner is not None:
-            inputs = {"motion": motion, "audio": heard, "known_mask": known_mask, "speaker": speaker}
-            if self.refiner_noise:
-                shape = (frames // self.per_token, self.refiner_noise)
-                inputs["noise"] = np.stack([rng.standard_normal(shape, np.float32) for rng in rngs])
-            motion = self.refiner(**inputs)["refined"]
+            motion = self.refiner(motion=motion, audio=heard, known_mask=known_mask, speaker=speaker)["refined"]
         if context is not None:
             motion = ease_in(motion, context, min(self.options.blend, window - context.shape[1]))
         self.windows += 1

@@ -28,7 +28,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from convodrive.eval.distribution import fd_g
-from convodrive.models.probtalk import STAGES, ProbTalk, ProbTalkConfig, energy_score, masked_l1
+from convodrive.models.probtalk import STAGES, ProbTalk, ProbTalkConfig, masked_l1
 from convodrive.motion import representation as rep
 from convodrive.plumbing.errors import UserError
 from convodrive.training.config import Preset
@@ -65,7 +65,6 @@ the 180 hand channels, and the head (FD_g 6.2) and eyes (7.0) came back near the
 the parts alike and 128-256 channels they score 0.97 and 0.20, the face 10.1 in all."""
 _TINY = {
     "balance_parts": True,
-    "refiner_sampling": 4,
     "codes": 16,
     "code_dim": 8,
     "vq_channels": [16, 16, 16, 16],
@@ -224,8 +223,7 @@ class ProbTalkRecipe(Recipe):
             f"{self.description}\n\nPartner audio {'heard' if config.dyadic else 'not heard'} (dyadic={config.dyadic}); "
             f"{config.position} positions; G={config.groups}, K={config.codes}, {config.frames_per_token} frames a token; "
             f"predictor {config.width}-d x {config.layers} layers, refiner {config.refiner_width}-d x "
-            f"{config.refiner_layers} layers"
-            f"{f', sampling {config.refiner_sampling} noise channels' if config.refiner_sampling else ''}; "
+            f"{config.refiner_layers} layers; "
             f"{'every part weighed alike' if config.balance_parts else 'every channel weighed alike'}; "
             f"trained on {config.window}-frame windows. Speakers: {speakers}.\n\n"
             "Use: `convodrive drive AUDIO --generator probtalk -G model=THIS_FOLDER` (options: iterations, temperature, "
@@ -327,10 +325,8 @@ def predictor_loss(
 def refiner_loss(
     model: ProbTalk, batch: Batch, known: torch.Tensor, generator: torch.Generator
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """Refining noisy VQ reconstructions (the reference's recipe): the error of the refined unknown
-    frames against the truth, and of velocities everywhere (so the seam with the known frames
-    counts). The error is L1 (the paper's) or, for a sampling refiner, the energy score of two
-    draws of its noise."""
+    """L1 of the refined unknown frames against the truth, and of velocities everywhere (so the seam
+    with the known frames counts), refining noisy VQ reconstructions (the reference's recipe)."""
     assert model.refiner is not None
     config = model.config
     motion, mask = batch["motion"], batch["mask"]
@@ -338,31 +334,14 @@ def refiner_loss(
         coarse = model.vq.decode(model.vq.encode(motion * mask))
         coarse = coarse + config.refiner_noise * torch.randn(coarse.shape, generator=generator)
     combined = known * motion + (1 - known) * coarse
-    audio = model.audio_norm(batch["audio"])
+    refined = model.refiner(combined, model.audio_norm(batch["audio"]), known, batch["speaker"])
     weight = part_weights(config)
     counted = mask if weight is None else mask * weight
     free = counted * (1 - known)
+    rec = masked_l1(refined, motion, free)
+    vel = masked_l1(refined.diff(dim=1), motion.diff(dim=1), counted)
     coarse_l1 = masked_l1(combined, motion, free)
-    if not config.refiner_sampling:
-        refined = model.refiner(combined, audio, known, batch["speaker"])
-        rec = masked_l1(refined, motion, free)
-        vel = masked_l1(refined.diff(dim=1), motion.diff(dim=1), counted)
-        return rec + config.velocity_weight * vel, {"l1": rec.detach(), "velocity": vel.detach(), "coarse_l1": coarse_l1}
-    tokens = -(-motion.shape[1] // config.frames_per_token)
-    first, second = (
-        model.refiner(
-            combined,
-            audio,
-            known,
-            batch["speaker"],
-            torch.randn(motion.shape[0], tokens, config.refiner_sampling, generator=generator),
-        )
-        for _ in range(2)
-    )
-    rec = energy_score(first, second, motion, free)
-    vel = energy_score(first.diff(dim=1), second.diff(dim=1), motion.diff(dim=1), counted)
-    figures = {"energy": rec.detach(), "velocity": vel.detach(), "l1": masked_l1(first, motion, free).detach()}
-    return rec + config.velocity_weight * vel, {**figures, "coarse_l1": coarse_l1}
+    return rec + config.velocity_weight * vel, {"l1": rec.detach(), "velocity": vel.detach(), "coarse_l1": coarse_l1}
 
 
 # --------------------------------------------------------------------------------------- export
@@ -398,15 +377,10 @@ class _Step(_Encoder):
 
 class _Refiner(_Encoder):
     def forward(  # type: ignore[override]
-        self,
-        motion: torch.Tensor,
-        audio: torch.Tensor,
-        known_mask: torch.Tensor,
-        speaker: torch.Tensor,
-        noise: torch.Tensor | None = None,
+        self, motion: torch.Tensor, audio: torch.Tensor, known_mask: torch.Tensor, speaker: torch.Tensor
     ) -> torch.Tensor:
         assert self.model.refiner is not None
-        return self.model.refiner(motion, self.model.audio_norm(audio), known_mask, speaker, noise)
+        return self.model.refiner(motion, self.model.audio_norm(audio), known_mask, speaker)
 
 
 def export_graphs(model: ProbTalk, spec: DataSpec) -> list[GraphSpec]:
@@ -503,28 +477,20 @@ def export_graphs(model: ProbTalk, spec: DataSpec) -> list[GraphSpec]:
             ),
         ]
     if model.refiner is not None:
-        sampling = config.refiner_sampling
 
         def refiner_inputs(n: int, rng: np.random.Generator) -> tuple[torch.Tensor, ...]:
             frames = f * n + int(rng.integers(f))  # the refiner takes any number of frames
-            inputs = (f32(rng, takes, frames, dim), audio(rng, frames), known_mask(rng, frames), speaker(rng))
-            return (*inputs, f32(rng, takes, -(-frames // f), sampling)) if sampling else inputs
+            return f32(rng, takes, frames, dim), audio(rng, frames), known_mask(rng, frames), speaker(rng)
 
-        names: tuple[str, ...] = ("motion", "audio", "known_mask", "speaker")
-        axes: dict[str, dict[int, str]] = {
-            "motion": frames_axes,
-            "audio": frames_axes,
-            "known_mask": frames_axes,
-            "speaker": {0: "takes"},
-        }
-        description = (
-            f"(takes, frames, {dim}) coarse motion with known frames in, log-mel, known mask, speaker -> refined motion"
-        )
-        if sampling:
-            names += ("noise",)
-            axes["noise"] = {0: "takes", 1: "tokens"}
-            description += f"; it samples: noise (takes, ceil(frames/{f}), {sampling}), standard normal, one row a token"
         graphs.append(
-            GraphSpec("refiner", _Refiner(model).eval(), names, ("refined",), refiner_inputs, axes, description=description)
+            GraphSpec(
+                "refiner",
+                _Refiner(model).eval(),
+                ("motion", "audio", "known_mask", "speaker"),
+                ("refined",),
+                refiner_inputs,
+                {"motion": frames_axes, "audio": frames_axes, "known_mask": frames_axes, "speaker": {0: "takes"}},
+                description=f"(takes, frames, {dim}) coarse motion with known frames in, log-mel, known mask, speaker -> refined motion",
+            )
         )
     return graphs
