@@ -15,6 +15,8 @@ from fractions import Fraction
 
 import numpy as np
 
+from convodrive.plumbing.lazy_import import scipy_signal
+
 
 class StreamResampler:
     """Resamples ``(n,)`` or ``(n, channels)`` float32 blocks from ``in_rate`` to ``out_rate``."""
@@ -69,10 +71,8 @@ class StreamResampler:
         return self._shape(out, flat)
 
     def _middle(self, window: np.ndarray, count: int) -> np.ndarray:
-        from scipy.signal import resample_poly  # here, not at load: scipy.signal takes seconds to import
-
         first = self.context * self.up // self.down
-        out = resample_poly(window, self.up, self.down, axis=0).astype(np.float32)[first : first + count]
+        out = scipy_signal().resample_poly(window, self.up, self.down, axis=0).astype(np.float32)[first : first + count]
         self._emitted += len(out)
         return out
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from convodrive.models.probtalk import ProbTalk, ProbTalkConfig, maskgit_sample, masked_l2, sinusoid
+from convodrive.models.probtalk import ProbTalk, ProbTalkConfig, masked_l2, maskgit_sample, sinusoid
 from convodrive.motion import representation as rep
 from convodrive.neural.maskgit import draw_uniforms, remask_count
 from convodrive.neural.maskgit import maskgit_sample as numpy_maskgit_sample

@@ -7,11 +7,11 @@ batched, so streaming in 3-frame steps and generating a whole clip at once give 
 from __future__ import annotations
 
 import math
-from types import ModuleType
 
 import numpy as np
 
 from convodrive import FPS
+from convodrive.plumbing.lazy_import import scipy_signal
 
 _BLOCK = 256
 
@@ -42,14 +42,6 @@ class FrameNoise:
         return out
 
 
-def _scipy_signal() -> ModuleType:
-    """scipy.signal, imported when a filter first runs: it takes seconds to import, which listing
-    plugins or ``--help`` should not pay."""
-    import scipy.signal
-
-    return scipy.signal
-
-
 def alpha(tau: float) -> float:
     """One-pole smoothing coefficient for time constant ``tau`` seconds at 30 fps."""
     return 1.0 - math.exp(-1.0 / (FPS * max(tau, 1e-6)))
@@ -64,14 +56,14 @@ class Filter:
 
     def settle(self, value: np.ndarray) -> Filter:
         """Start as if ``value`` had always been the input: the output begins there, not at zero."""
-        self.zi = _scipy_signal().lfilter_zi(self.b, self.a)[:, None] * np.asarray(value, float).reshape(1, -1)
+        self.zi = scipy_signal().lfilter_zi(self.b, self.a)[:, None] * np.asarray(value, float).reshape(1, -1)
         return self
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         x2 = x.reshape(len(x), -1).astype(np.float64)
         if len(x2) == 0:
             return x2.reshape(x.shape)
-        y, self.zi = _scipy_signal().lfilter(self.b, self.a, x2, axis=0, zi=self.zi)
+        y, self.zi = scipy_signal().lfilter(self.b, self.a, x2, axis=0, zi=self.zi)
         return y.reshape(x.shape)
 
 
