@@ -193,7 +193,8 @@ class ProbTalkRecipe(Recipe):
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         assert isinstance(model, ProbTalk)
         if model.stage == "vq":
-            return model.vq.loss(batch["motion"], batch["mask"], ctx.generator, part_weights(model.config))
+            motion, mask = batch["motion"], batch["mask"]
+            return model.vq.loss(motion, mask, ctx.generator, part_weights(model.config, mask.device))
         batch = crop(batch, model.config, ctx.generator)
         known = context_masks(batch["motion"].shape[0], batch["motion"].shape[1], model.config, ctx.generator)
         if model.stage == "predictor":
@@ -232,10 +233,11 @@ class ProbTalkRecipe(Recipe):
 
 
 # ----------------------------------------------------------------------------------- the stages
-def part_weights(config: ProbTalkConfig) -> torch.Tensor | None:
+def part_weights(config: ProbTalkConfig, device: torch.device | str = "cpu") -> torch.Tensor | None:
     """(D,) error weights under which each motion part of the layout (jaw, eyes, ARKit, head, upper
     body, hands) counts alike, whatever its number of channels; voice activity keeps one channel's
-    weight. The mean weight is 1, so the loss keeps its scale. None when ``balance_parts`` is off."""
+    weight. The mean weight is 1, so the loss keeps its scale. None when ``balance_parts`` is off.
+    On ``device``, the batch's: a CPU tensor times a CUDA mask fails."""
     if not config.balance_parts:
         return None
     weight = np.ones(rep.FEATURE_DIM)
@@ -243,7 +245,7 @@ def part_weights(config: ProbTalkConfig) -> torch.Tensor | None:
     channels = sum(part.stop - part.start for part in motion_parts)
     for part in motion_parts:
         weight[part] = channels / len(motion_parts) / (part.stop - part.start)
-    return torch.from_numpy(weight).float()
+    return torch.from_numpy(weight).float().to(device)
 
 
 def reconstruction_fd(reconstruct: Callable[[torch.Tensor], torch.Tensor], batch: Batch) -> dict[str, float]:
@@ -335,7 +337,7 @@ def refiner_loss(
         coarse = coarse + config.refiner_noise * torch.randn(coarse.shape, generator=generator)
     combined = known * motion + (1 - known) * coarse
     refined = model.refiner(combined, model.audio_norm(batch["audio"]), known, batch["speaker"])
-    weight = part_weights(config)
+    weight = part_weights(config, mask.device)
     counted = mask if weight is None else mask * weight
     free = counted * (1 - known)
     rec = masked_l1(refined, motion, free)
