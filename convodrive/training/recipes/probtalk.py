@@ -56,7 +56,8 @@ _SMALL = {
     "dropout": 0.0,
 }
 """The shipped model: sized so that scripts/train_probtalk.sh trains it on a shared 2-core machine
-within the hour (about 0.2 to 0.4 CPU-seconds a step at batch 16, one thread). Its PQ-VAE learns
+in about an hour, inside its 2-hour budget (0.2 to 0.4 CPU-seconds a step at batch 16, one
+thread; the shipped run took 57 min beside other training runs). Its PQ-VAE learns
 with squared error: at 2000 steps on the script's corpus (64-128 channels, every channel alike),
 the reconstruction's validation FD_g (face / body) is 25.7 / 34.8, against 45.7 / 91.9 with the
 paper's L1, which settles on each channel's median and so flattens the face's mostly-still
