@@ -303,13 +303,16 @@ class _Avatar:
         self.future: concurrent.futures.Future[bytes] = concurrent.futures.Future()
 
     def start(self) -> None:
-        threading.Thread(target=self._build, name="stream-avatar", daemon=True).start()
+        # Imported here, on the thread that opens the backend, before the producer starts: the
+        # builder thread's first import of scipy raced the producer's import of scipy.signal, and
+        # one of the two failed with KeyError: 'scipy'.
+        from convodrive.backends.avatar.gltf_write import glb_bytes, rig_to_gltf
+        from convodrive.backends.avatar.mannequin import build_mannequin
 
-    def _build(self) -> None:
-        try:
-            from convodrive.backends.avatar.gltf_write import glb_bytes, rig_to_gltf
-            from convodrive.backends.avatar.mannequin import build_mannequin
+        def build() -> None:
+            try:
+                self.future.set_result(glb_bytes(*rig_to_gltf(build_mannequin())))
+            except BaseException as exc:  # the page then shows why; frames still flow
+                self.future.set_exception(exc)
 
-            self.future.set_result(glb_bytes(*rig_to_gltf(build_mannequin())))
-        except BaseException as exc:  # the page then shows why; frames still flow
-            self.future.set_exception(exc)
+        threading.Thread(target=build, name="stream-avatar", daemon=True).start()

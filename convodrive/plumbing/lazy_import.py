@@ -6,6 +6,11 @@ two threads at once (the capture thread's resampler and the producer's motion fi
 CPython's import of the same package from two threads raced there: one thread's import failed with
 ``KeyError: 'scipy'`` and stopped the run. The lock makes the second thread wait for the first
 thread's import.
+
+The lock only orders imports that go through it. A worker thread must not import anything else a
+run's other threads may be importing: what it needs is imported before it starts (the stream
+backend's avatar builder imports scipy.sparse on the opening thread for that reason; its first
+import of scipy on its own thread raced the producer's and failed the same way).
 """
 
 from __future__ import annotations
