@@ -30,7 +30,7 @@ train() {
         --stage "$stage" --steps "$steps" --set "decay_steps=$((steps - 20))" --out "$runs/$stage" "$@"
 }
 train vq 4000
-train predictor 4000 --init "$runs/vq"
+train predictor 8000 --init "$runs/vq"
 train refiner 1500 --init "$runs/predictor"
 trained=$(date +%s)
 
