@@ -52,6 +52,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from convodrive.models.common import AudioNorm
 from convodrive.motion import representation as rep
 from convodrive.motion.channels import ARKIT_NAMES
 
@@ -295,19 +296,6 @@ def sinusoid(values: torch.Tensor, dim: int) -> torch.Tensor:
 
 def frame_positions(batch: int, length: int, device: torch.device) -> torch.Tensor:
     return torch.arange(length, device=device, dtype=torch.float32)[None].expand(batch, length)
-
-
-class AudioNorm(nn.Module):
-    """Both voices' log-mel standardised per band with train-split statistics, flattened to 2*bands."""
-
-    def __init__(self, bands: int) -> None:
-        super().__init__()
-        self.register_buffer("mean", torch.zeros(bands))
-        self.register_buffer("std", torch.ones(bands))
-
-    def forward(self, audio: torch.Tensor) -> torch.Tensor:
-        b, t = audio.shape[:2]
-        return ((audio - self.mean) / self.std).reshape(b, t, -1)
 
 
 # -------------------------------------------------------------------------------- lip regressor
@@ -774,7 +762,7 @@ class A2P(nn.Module):
             raise ValueError(f"unknown stage {stage!r} (stages: {', '.join(STAGES)})")
         self.config, self.stage = config, stage
         face_dim, body_dim = FACE.stop - FACE.start, BODY.stop - BODY.start
-        self.audio_norm = AudioNorm(bands)
+        self.audio_norm = AudioNorm(bands, flatten_voices=True)
         self.lip: LipRegressor | None = None
         self.face: Denoiser | None = None
         self.vq: GuideVQ | None = None

@@ -35,6 +35,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from convodrive.models.common import AudioNorm, masked_l1, masked_l2
+
 
 @dataclasses.dataclass(frozen=True)
 class ProbTalkConfig:
@@ -362,18 +364,6 @@ class PQVAE(nn.Module):
         return total, {**figures, "codes_used": torch.tensor(float(used))}
 
 
-def masked_l1(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Mean |a - b| over the entries ``mask`` (broadcast to a's shape) keeps, weighted by its values."""
-    weight = mask.expand_as(a)
-    return ((a - b).abs() * weight).sum() / weight.sum().clamp(min=1.0)
-
-
-def masked_l2(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Mean (a - b)^2 over the entries ``mask`` keeps."""
-    weight = mask.expand_as(a)
-    return ((a - b).square() * weight).sum() / weight.sum().clamp(min=1.0)
-
-
 # ---------------------------------------------------------------------------------- transformer
 class SelfAttention(nn.Module):
     def __init__(self, width: int, heads: int, dropout: float) -> None:
@@ -512,18 +502,6 @@ class ContextEncoder(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.net(x)
-
-
-class AudioNorm(nn.Module):
-    """Log-mel to zero mean, unit spread per band, with the train split's statistics."""
-
-    def __init__(self, bands: int) -> None:
-        super().__init__()
-        self.register_buffer("mean", torch.zeros(bands))
-        self.register_buffer("std", torch.ones(bands))
-
-    def forward(self, audio: torch.Tensor) -> torch.Tensor:
-        return (audio - self.mean) / self.std
 
 
 # ------------------------------------------------------------------------------------- predictor

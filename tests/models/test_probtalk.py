@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from convodrive.models.probtalk import ProbTalk, ProbTalkConfig, masked_l2, maskgit_sample, sinusoid
+from convodrive.models.common import masked_l2
+from convodrive.models.probtalk import ProbTalk, ProbTalkConfig, maskgit_sample, sinusoid
 from convodrive.motion import representation as rep
 from convodrive.neural.maskgit import draw_uniforms, remask_count
 from convodrive.neural.maskgit import maskgit_sample as numpy_maskgit_sample

@@ -49,6 +49,7 @@ from convodrive.models.a2p import (
     Denoiser,
     Memory,
 )
+from convodrive.models.common import masked_l2
 from convodrive.motion import representation as rep
 from convodrive.neural.diffusion import cosine_schedule, ddim_step, noised
 from convodrive.plumbing.errors import UserError
@@ -316,11 +317,6 @@ def noised_at(x0: torch.Tensor, steps: torch.Tensor, noise: torch.Tensor, config
     return noised(x0, noise, alpha_bar(config)[steps][:, None, None])
 
 
-def masked_mse(a: torch.Tensor, b: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
-    weight = weight.expand_as(a)
-    return (((a - b) ** 2) * weight).sum() / weight.sum().clamp(min=1.0)
-
-
 def denoiser_loss(
     net: Denoiser,
     target: torch.Tensor,
@@ -337,8 +333,8 @@ def denoiser_loss(
     steps = torch.randint(config.diffusion_steps, (b,), generator=generator)
     noise = torch.randn(target.shape, generator=generator)
     x0 = net.step(noised_at(target, steps, noise, config), steps, target, known, memory)
-    rec = masked_mse(x0, target, feature_mask * (1 - known))
-    vel = masked_mse(x0.diff(dim=1), target.diff(dim=1), feature_mask)
+    rec = masked_l2(x0, target, feature_mask * (1 - known))
+    vel = masked_l2(x0.diff(dim=1), target.diff(dim=1), feature_mask)
     return rec + velocity_weight * vel, {"x0": rec.detach(), "velocity": vel.detach()}
 
 
@@ -358,7 +354,7 @@ def lip_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[torc
     out = model.lip(torch.cat([heard, swapped]))
     own, other = out[: len(motion)], out[len(motion) :]
     columns = list(MOUTH_COLUMNS)
-    mouth = masked_mse(own[..., :-1], motion[..., columns], mask[..., columns])
+    mouth = masked_l2(own[..., :-1], motion[..., columns], mask[..., columns])
     vad_self = F.mse_loss(own[..., -1], motion[..., VAD.start])
     vad_other = F.mse_loss(other[..., -1], motion[..., VAD.start + 1])
     return mouth + vad_self + vad_other, {"mouth": mouth.detach(), "vad": (vad_self + vad_other).detach() / 2}
@@ -509,7 +505,7 @@ def consistency_loss(
         answer = target_net.step(x_prev, previous.clamp(min=0), x0, known, target_memory, scale)
         answer = torch.where((previous < 0)[:, None, None], guess, answer)
     prediction = student.step(x, step, x0, known, student_memory, scale)
-    return masked_mse(prediction, answer, feature_mask * (1 - known))
+    return masked_l2(prediction, answer, feature_mask * (1 - known))
 
 
 def distill_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:

@@ -28,7 +28,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from convodrive.eval.distribution import fd_g
-from convodrive.models.probtalk import STAGES, ProbTalk, ProbTalkConfig, masked_l1
+from convodrive.models.common import masked_l1
+from convodrive.models.probtalk import STAGES, ProbTalk, ProbTalkConfig
 from convodrive.motion import representation as rep
 from convodrive.plumbing.errors import UserError
 from convodrive.training.config import Preset
