@@ -62,6 +62,12 @@ class ProbTalkConfig:
     """Weigh every part of the feature layout alike in the PQ-VAE's and the refiner's error, however many
     channels it has (False: every channel alike, the paper's). Channel-alike lets 180 hand channels
     outvote 12 of the head: the codes go to the hands and the head is left at its mean."""
+    eyelid_part: bool = False
+    """With ``balance_parts``: the eyelids (eyeBlinkLeft, eyeBlinkRight) count as a part of their own,
+    not as 2 of ARKit's 52 channels. Blinks fill 1 frame in 60; weighed as 2 channels of 52 the
+    PQ-VAE left them out (its reconstruction's lids never passed a third of the real blink's
+    height), and so the sampled codes never blinked. FD_g face of the real validation motion with
+    its blinks taken out: 6.7."""
     # conditions
     dyadic: bool = True
     """Hear the partner's audio as a second stream (False: self only, to measure what it adds)."""

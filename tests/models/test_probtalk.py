@@ -149,6 +149,26 @@ def test_the_pq_vae_error_is_l1_or_its_square() -> None:
         dataclasses.replace(TINY, vq_loss="huber").check()
 
 
+def test_eyelid_part_weighs_the_two_lids_as_much_as_a_whole_part() -> None:
+    """``eyelid_part``: the two blink channels carry as much of the error as the head's 12 channels
+    or the rest of ARKit's 50, so that a PQ-VAE cannot leave blinks out for free."""
+    import dataclasses
+
+    from convodrive.motion.channels import ARKIT_NAMES
+    from convodrive.training.recipes.probtalk import EYELIDS, part_weights
+
+    plain = part_weights(dataclasses.replace(TINY, balance_parts=True))
+    weight = part_weights(dataclasses.replace(TINY, balance_parts=True, eyelid_part=True))
+    assert plain is not None and weight is not None
+    assert float(weight.mean()) == pytest.approx(1.0)
+    arkit = rep.PARTS["arkit"]
+    lids = [arkit.start + ARKIT_NAMES.index(n) for n in EYELIDS]
+    rest = [c for c in range(arkit.start, arkit.stop) if c not in lids]
+    lid_total, rest_total = float(weight[lids].sum()), float(weight[rest].sum())
+    assert lid_total == pytest.approx(rest_total) == pytest.approx(float(weight[rep.PARTS["head"]].sum()))
+    assert lid_total > 10 * float(plain[lids].sum()), "without it the lids weigh 2/52 of ARKit's share"
+
+
 def test_balanced_parts_weigh_a_small_part_as_much_as_a_large_one() -> None:
     """``balance_parts``: the same error confined to the head's 12 channels or to the hands' 180
     costs the PQ-VAE alike (channel-alike, the hands' costs 15 times more), and the loss keeps

@@ -31,6 +31,7 @@ from convodrive.eval.distribution import fd_g
 from convodrive.models.common import masked_l1
 from convodrive.models.probtalk import STAGES, ProbTalk, ProbTalkConfig
 from convodrive.motion import representation as rep
+from convodrive.motion.channels import ARKIT_NAMES
 from convodrive.plumbing.errors import UserError
 from convodrive.training.config import Preset
 from convodrive.training.corpus_data import audio_stats, corpus_facts, open_corpus, train_stats
@@ -40,6 +41,7 @@ from convodrive.training.windows import CorpusWindows
 _SMALL = {
     "vq_loss": "l2",
     "balance_parts": True,
+    "eyelid_part": True,
     "code_dim": 64,
     "vq_channels": [128, 128, 256, 256],
     "vq_layers": 1,
@@ -235,18 +237,26 @@ class ProbTalkRecipe(Recipe):
 
 
 # ----------------------------------------------------------------------------------- the stages
+EYELIDS = ("eyeBlinkLeft", "eyeBlinkRight")
+"""The ARKit channels ``eyelid_part`` weighs as a part of their own."""
+
+
 def part_weights(config: ProbTalkConfig, device: torch.device | str = "cpu") -> torch.Tensor | None:
     """(D,) error weights under which each motion part of the layout (jaw, eyes, ARKit, head, upper
-    body, hands) counts alike, whatever its number of channels; voice activity keeps one channel's
-    weight. The mean weight is 1, so the loss keeps its scale. None when ``balance_parts`` is off.
-    On ``device``, the batch's: a CPU tensor times a CUDA mask fails."""
+    body, hands; the eyelids too with ``eyelid_part``) counts alike, whatever its number of
+    channels; voice activity keeps one channel's weight. The mean weight is 1, so the loss keeps its
+    scale. None when ``balance_parts`` is off. On ``device``, the batch's: a CPU tensor times a CUDA
+    mask fails."""
     if not config.balance_parts:
         return None
+    parts = [np.arange(part.start, part.stop) for name, part in rep.PARTS.items() if name != "vad"]
+    if config.eyelid_part:
+        lids = rep.PARTS["arkit"].start + np.array([ARKIT_NAMES.index(n) for n in EYELIDS])
+        parts = [np.setdiff1d(p, lids) for p in parts] + [lids]
     weight = np.ones(rep.FEATURE_DIM)
-    motion_parts = [part for name, part in rep.PARTS.items() if name != "vad"]
-    channels = sum(part.stop - part.start for part in motion_parts)
-    for part in motion_parts:
-        weight[part] = channels / len(motion_parts) / (part.stop - part.start)
+    channels = sum(len(p) for p in parts)
+    for columns in parts:
+        weight[columns] = channels / len(parts) / len(columns)
     return torch.from_numpy(weight).float().to(device)
 
 
