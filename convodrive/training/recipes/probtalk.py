@@ -41,7 +41,6 @@ from convodrive.training.windows import CorpusWindows
 _SMALL = {
     "vq_loss": "l2",
     "balance_parts": True,
-    "eyelid_part": True,
     "code_dim": 64,
     "vq_channels": [128, 128, 256, 256],
     "vq_layers": 1,
@@ -59,18 +58,22 @@ _SMALL = {
     "dropout": 0.0,
 }
 """The shipped model: sized so that scripts/train_probtalk.sh trains it on a shared 2-core machine
-in about an hour, inside its 2-hour budget (0.2 to 0.4 CPU-seconds a step at batch 16, one
-thread; the shipped run took 57 min beside other training runs). Its PQ-VAE learns
+in about 70 minutes, inside its 2-hour budget (0.2 to 0.4 CPU-seconds a step at batch 16, one
+thread; for the shipped weights the vq stage took 30 min, predictor and refiner 37 min, each
+beside another training run). Its PQ-VAE learns
 with squared error: at 2000 steps on the script's corpus (64-128 channels, every channel alike),
 the reconstruction's validation FD_g (face / body) is 25.7 / 34.8, against 45.7 / 91.9 with the
 paper's L1, which settles on each channel's median and so flattens the face's mostly-still
 channels. Every part weighs alike (``balance_parts``): with every channel alike the codes went to
 the 180 hand channels, and the head (FD_g 6.2) and eyes (7.0) came back near their means; with
-the parts alike and 128-256 channels they score 0.97 and 0.20, the face 10.1 in all. The eyelids
-weigh as a part of their own (``eyelid_part``): at 4000 steps the reconstruction's blinks reach
-5.4 (99th percentile, normalised; the real ones 5.6, and 0.7 without it) and the validation FD_g
-face falls from 9.3 to 7.8, while the body's rises from 27.2 to 31.3 (each part's share is now a
-seventh)."""
+the parts alike and 128-256 channels they score 0.97 and 0.20, the face 10.1 in all.
+
+``eyelid_part`` stays off: it brought the blinks back into the PQ-VAE (at 4000 steps the
+reconstruction's lids reach 5.4 at the 99th percentile, normalised, against the real 5.6 and 0.7
+without it; validation FD_g face 9.3 -> 7.8) but cost the body a seventh of the error's share
+(body 27.2 -> 31.3). Trained through (predictor 8000 steps), on the test split: FD_g face
+10.7 -> 8.3 and FGD face 162 -> 126, but FD_g body 22.4 -> 31.7 and FGD holistic 38.9 -> 42.2,
+and MaskGIT's confident-first decoding sampled about one blink a minute (the corpus: 14-18)."""
 _TINY = {
     "balance_parts": True,
     "codes": 16,
