@@ -29,7 +29,7 @@ train() {
     "$bin/convodrive" train probtalk --corpus "$corpus" --preset small --seed 0 --threads "$threads" \
         --stage "$stage" --steps "$steps" --set "decay_steps=$((steps - 20))" --out "$runs/$stage" "$@"
 }
-train vq 4000
+train vq 8000
 train predictor 8000 --init "$runs/vq"
 train refiner 1500 --init "$runs/predictor"
 trained=$(date +%s)
