@@ -14,7 +14,8 @@
 # stopped. SCALE=0.05 runs a twentieth of the steps and warm-ups (a quick check of the whole
 # pipeline; the shipped weights' card says which SCALE made them); STEPS_face=N (any stage)
 # sets one stage's steps. SHIP_ONLY=1 trains nothing (RUN_DIR's stages are done): it exports,
-# compares and ships. FGD uses the embedder shipped in convodrive/eval/fgd_model/ (made by
+# compares and ships; TRAIN_ONLY=1 stops after training (train on a GPU machine, ship where the
+# corpus's audio is). FGD uses the embedder shipped in convodrive/eval/fgd_model/ (made by
 # scripts/train_fgd.sh when missing) or FGD_MODEL=DIR; SAMPLES (default 2) sets the takes per
 # test conversation, MAX_CONVERSATIONS=N scores only the first N (default: all).
 # Uses CUDA when torch sees a GPU (--device auto). Logs: RUN_DIR/{face,body,distill}.log.
@@ -72,6 +73,7 @@ train_all() { # the face and body sides at once, then both students distilled
 
 [ -f "$corpus/manifest.json" ] || "$bin/convodrive" corpus make --hours 2 --out "$corpus" --seed 0
 [ "${SHIP_ONLY:-0}" = 1 ] || train_all
+if [ "${TRAIN_ONLY:-0}" = 1 ]; then echo "train_a2p: trained in $runs (TRAIN_ONLY: nothing exported)"; exit 0; fi
 trained=$(date +%s)
 
 rm -rf "$runs/fp32" "$runs/int8"
@@ -113,13 +115,16 @@ columns = [METRIC, "FD_g body", "FD_g face", "FD_k body", "FD_k face", "Div_samp
 cell = lambda v: "—" if v is None else f"{v:.3g}"
 rows = [f"| {m} | " + " | ".join(cell(r.get(c)) for c in columns) + " |" for m, r in results.items()]
 stages = ("lip", "face", "vq", "guide", "body", "distill")
-steps = ", ".join(f"{s} {json.loads((runs / s / 'run.json').read_text())['train_config']['steps']}" for s in stages)
+runs_json = {s: json.loads((runs / s / "run.json").read_text()) for s in stages}
+steps = ", ".join(f"{s} {run['train_config']['steps']}" for s, run in runs_json.items())
+where = ", ".join(sorted({f"{run['device']} (torch {run['torch']})" for run in runs_json.values()}))
 env = "".join(f"{k}={v} " for k, v in sorted(os.environ.items()) if k in ("SCALE", "SHIP_ONLY", "SAMPLES", "MAX_CONVERSATIONS") or k.startswith("STEPS_"))
 card = f"""
 ## How these weights were made
 
 - command: `{env}scripts/train_a2p.sh {corpus} {runs}` at commit `{commit}`
   (stages {steps} steps, `small` preset, seed 0)
+- trained on: {where}
 - corpus: made by `convodrive corpus make --hours 2 --seed 0` (speech by espeak-ng, motion by convodrive's
   `procedural` generator); its test split scores the model below
 - wall time: {(trained - started) / 60:.0f} min to train, {(time.time() - started) / 60:.0f} min in all, on

@@ -12,6 +12,8 @@
 # a step); torch uses CUDA when it sees a GPU (--device auto). THREADS (default 1) sets torch's
 # CPU threads: on a busy machine one thread is fastest (two threads that wait for each other in
 # every operation ran ten times slower here). A second run resumes each stage where it stopped.
+# SHIP_ONLY=1 trains nothing (RUN_DIR's stages are done): it exports, compares and ships;
+# TRAIN_ONLY=1 stops after training (train on a GPU machine, ship where the corpus's audio is).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 corpus=${1:-corpus2h}
@@ -29,9 +31,12 @@ train() {
     "$bin/convodrive" train probtalk --corpus "$corpus" --preset small --seed 0 --threads "$threads" \
         --stage "$stage" --steps "$steps" --set "decay_steps=$((steps - 20))" --out "$runs/$stage" "$@"
 }
-train vq 8000
-train predictor 8000 --init "$runs/vq"
-train refiner 1500 --init "$runs/predictor"
+if [ "${SHIP_ONLY:-0}" != 1 ]; then
+    train vq 8000
+    train predictor 8000 --init "$runs/vq"
+    train refiner 1500 --init "$runs/predictor"
+fi
+if [ "${TRAIN_ONLY:-0}" = 1 ]; then echo "train_probtalk: trained in $runs (TRAIN_ONLY: nothing exported)"; exit 0; fi
 trained=$(date +%s)
 
 rm -rf "$runs/fp32" "$runs/int8"
@@ -65,12 +70,16 @@ commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=
 columns = ["FGD holistic", "FD_g body", "FD_g face", "Var body", "Var face", "BC", "lip r", "mouth shut"]
 cell = lambda v: "—" if v is None else f"{v:.3g}"
 rows = [f"| {m} | " + " | ".join(cell(r.get(c)) for c in columns) + " |" for m, r in results.items()]
-steps = {s: json.loads((runs / s / "run.json").read_text())["train_config"]["steps"] for s in ("vq", "predictor", "refiner")}
+stages = {s: json.loads((runs / s / "run.json").read_text()) for s in ("vq", "predictor", "refiner")}
+steps = {s: run["train_config"]["steps"] for s, run in stages.items()}
+where = ", ".join(sorted({f"{run['device']} (torch {run['torch']})" for run in stages.values()}))
+env = "".join(f"{k}={v} " for k, v in sorted(os.environ.items()) if k in ("SHIP_ONLY", "THREADS"))
 card = f"""
 ## How these weights were made
 
-- command: `THREADS={threads} scripts/train_probtalk.sh {corpus} {runs}` at commit `{commit}`
+- command: `{env}scripts/train_probtalk.sh {corpus} {runs}` at commit `{commit}`
   (stages vq {steps['vq']}, predictor {steps['predictor']}, refiner {steps['refiner']} steps, `small` preset, seed 0)
+- trained on: {where}
 - corpus: made by `convodrive corpus make --hours 2 --seed 0` (speech by espeak-ng, motion by convodrive's
   `procedural` generator); its test split scores the model below
 - wall time: {(trained - started) / 60:.0f} min to train, {(time.time() - started) / 60:.0f} min in all, on
