@@ -529,7 +529,7 @@ class Codebook(nn.Module):
         n = self.embed.shape[0]
         onehot = F.one_hot(codes, n).to(z.dtype)
         count, total = onehot.sum(0), onehot.t() @ z
-        samples = z[torch.randint(len(z), (n,), generator=generator, device=z.device)]
+        samples = z[torch.randint(len(z), (n,), generator=generator).to(z.device)]
         if torch.distributed.is_available() and torch.distributed.is_initialized():
             for tensor in (count, total):
                 torch.distributed.all_reduce(tensor)

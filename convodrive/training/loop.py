@@ -27,7 +27,7 @@ from convodrive.training import distributed
 from convodrive.training.checkpoint import list_checkpoints, load_checkpoint, prune_checkpoints, save_checkpoint
 from convodrive.training.config import TrainConfig, to_dict
 from convodrive.training.logbook import Logbook
-from convodrive.training.recipe import Batch, Recipe, StartingPoint, StepContext, TrainingData
+from convodrive.training.recipe import Batch, Recipe, StartingPoint, StepContext, TrainingData, to_device
 from convodrive.training.registry import get_preset, get_recipe
 
 
@@ -106,10 +106,6 @@ def _split_settings(recipe: Recipe, settings: dict[str, Any]) -> tuple[dict[str,
     model_over = {k: v for k, v in settings.items() if k not in train_keys}
     train_over = {k: v for k, v in settings.items() if k in train_keys}
     return model_over, train_over
-
-
-def _to_device(batch: Batch, device: torch.device) -> Batch:
-    return {k: v.to(device, non_blocking=True) for k, v in batch.items()}
 
 
 def train(request: TrainRequest) -> TrainResult:
@@ -260,7 +256,7 @@ def _train(
         while step < train_cfg.steps:
             indices = batch_indices(train_cfg.seed, step, len(data.train), train_cfg.batch_size)
             mine = indices[procs.rank * local_batch : (procs.rank + 1) * local_batch]
-            batch = _to_device(data.train.batch(mine), procs.device)
+            batch = to_device(data.train.batch(mine), procs.device)
             gen = torch.Generator(device="cpu").manual_seed(step_seed(train_cfg.seed, step, procs.rank))
             ctx = StepContext(step, procs.rank, procs.world_size, gen)
             lr = learning_rate(train_cfg, step)

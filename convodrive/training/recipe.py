@@ -20,6 +20,16 @@ from convodrive.plumbing.errors import UserError
 from convodrive.training.config import Preset, TrainConfig
 
 Batch = dict[str, torch.Tensor]
+"""Named tensors of one step. A loss draws its randomness on the CPU from the step's generator (the
+same numbers on any device) and moves it to the batch's device."""
+
+
+def to_device(batch: Batch, device: torch.device) -> Batch:
+    return {k: v.to(device, non_blocking=True) for k, v in batch.items()}
+
+
+def model_device(model: torch.nn.Module) -> torch.device:
+    return next(model.parameters()).device
 
 
 @dataclasses.dataclass
@@ -160,7 +170,7 @@ class Recipe(abc.ABC):
         totals: dict[str, float] = {}
         for i, part in enumerate(chunks):
             ctx = StepContext(i, 0, 1, torch.Generator().manual_seed(1000 + i))
-            loss, figures = self.loss(model, data.val.batch(part), ctx)
+            loss, figures = self.loss(model, to_device(data.val.batch(part), model_device(model)), ctx)
             for name, value in {"loss": loss, **figures}.items():
                 totals[name] = totals.get(name, 0.0) + float(value) / len(chunks)
         return totals

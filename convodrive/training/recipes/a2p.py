@@ -314,7 +314,7 @@ def alpha_bar(config: A2PConfig) -> torch.Tensor:
 
 
 def noised_at(x0: torch.Tensor, steps: torch.Tensor, noise: torch.Tensor, config: A2PConfig) -> torch.Tensor:
-    return noised(x0, noise, alpha_bar(config)[steps][:, None, None])
+    return noised(x0, noise, alpha_bar(config).to(x0.device)[steps][:, None, None])
 
 
 def denoiser_loss(
@@ -329,9 +329,10 @@ def denoiser_loss(
     """x0 prediction at a uniform random diffusion step, on the frames not known, plus the
     velocity error (over all frames, so the seam with the known prefix counts)."""
     b, t, _ = target.shape
-    known = known_prefix(b, t, config, generator)
-    steps = torch.randint(config.diffusion_steps, (b,), generator=generator)
-    noise = torch.randn(target.shape, generator=generator)
+    device = target.device
+    known = known_prefix(b, t, config, generator).to(device)
+    steps = torch.randint(config.diffusion_steps, (b,), generator=generator).to(device)
+    noise = torch.randn(target.shape, generator=generator).to(device)
     x0 = net.step(noised_at(target, steps, noise, config), steps, target, known, memory)
     rec = masked_l2(x0, target, feature_mask * (1 - known))
     vel = masked_l2(x0.diff(dim=1), target.diff(dim=1), feature_mask)
@@ -374,7 +375,7 @@ def face_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[tor
     offset, size = crop(batch["motion"].shape[1], model.config, generator)
     motion, audio, mask = _window(batch, offset, size)
     conditions = face_conditions(model, audio)
-    keep = keep_flags(len(motion), 2, model.config.cond_drop, generator)
+    keep = keep_flags(len(motion), 2, model.config.cond_drop, generator).to(motion.device)
     memory = model.face.memory(conditions, keep, batch["speaker"])
     return denoiser_loss(
         model.face,
@@ -417,9 +418,9 @@ def guide_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[to
     """Next-code cross-entropy with label smoothing 0.1 (the reference's), teacher forcing."""
     assert model.guide is not None
     targets, chunks = guide_inputs(model, batch)
-    keep = (torch.rand(len(targets), generator=generator) >= model.config.cond_drop).float()
+    keep = (torch.rand(len(targets), generator=generator) >= model.config.cond_drop).float().to(targets.device)
     memory = model.guide.audio_memory(chunks, keep)
-    start = torch.full((len(targets), 1), model.guide.start_token, dtype=torch.long)
+    start = torch.full((len(targets), 1), model.guide.start_token, dtype=torch.long, device=targets.device)
     inputs = torch.cat([start, targets[:, :-1]], dim=1)
     logits = model.guide(inputs, memory, batch["speaker"])
     loss = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), targets.reshape(-1), label_smoothing=0.1)
@@ -441,17 +442,17 @@ def body_inputs(
     phase = _randint(0, FPS - 1, generator)
     with torch.no_grad():
         guides = model.vq.decode(model.vq.encode(second_poses(batch["motion"][:, : begin + size], phase)))
-    positions = torch.arange(phase, begin + size, FPS, dtype=torch.float32) - begin
+    positions = torch.arange(phase, begin + size, FPS, dtype=torch.float32, device=motion.device) - begin
     near = (positions >= -FPS) & (positions <= size - GUIDE_REACH)
     guides, positions = guides[:, near], positions[near][None].expand(len(motion), -1)
-    valid = (torch.rand(positions.shape, generator=generator) >= 0.1).float()
+    valid = (torch.rand(positions.shape, generator=generator) >= 0.1).float().to(motion.device)
     return motion, audio, batch["mask"], guides, positions, valid
 
 
 def body_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     assert model.body is not None
     motion, audio, mask, guides, positions, valid = body_inputs(model, batch, generator)
-    keep = keep_flags(len(motion), 2, model.config.cond_drop, generator)
+    keep = keep_flags(len(motion), 2, model.config.cond_drop, generator).to(motion.device)
     memory = model.body.memory([model.audio_norm(audio)], keep, batch["speaker"], guides, positions, valid)
     return denoiser_loss(
         model.body,
@@ -485,14 +486,15 @@ def consistency_loss(
     (conditional rows, then unconditional), the target's and the student's."""
     teacher_memory, target_memory, student_memory = memories
     b, t, _ = x0.shape
+    device = x0.device
     skip, points = config.distill_skip, config.diffusion_steps // config.distill_skip
-    known = known_prefix(b, t, config, generator)
-    n = torch.randint(1, points + 1, (b,), generator=generator)
+    known = known_prefix(b, t, config, generator).to(device)
+    n = torch.randint(1, points + 1, (b,), generator=generator).to(device)
     step, previous = n * skip - 1, (n - 1) * skip - 1
-    scale = 1 + torch.rand(b, generator=generator) * (guidance_max - 1)
-    noise = torch.randn(x0.shape, generator=generator)
+    scale = (1 + torch.rand(b, generator=generator) * (guidance_max - 1)).to(device)
+    noise = torch.randn(x0.shape, generator=generator).to(device)
     x = noised_at(x0, step, noise, config)
-    abar = alpha_bar(config)
+    abar = alpha_bar(config).to(device)
     with torch.no_grad():
         both = teacher.step(
             torch.cat([x, x]), torch.cat([step, step]), torch.cat([x0, x0]), torch.cat([known, known]), teacher_memory
@@ -500,7 +502,7 @@ def consistency_loss(
         cond, uncond = both[:b], both[b:]
         guess = uncond + scale[:, None, None] * (cond - uncond)
         guess = known * x0 + (1 - known) * guess
-        a_prev = torch.where(previous >= 0, abar[previous.clamp(min=0)], torch.ones(b))[:, None, None]
+        a_prev = torch.where(previous >= 0, abar[previous.clamp(min=0)], torch.ones(b, device=device))[:, None, None]
         x_prev = ddim_step(x, guess, abar[step][:, None, None], a_prev)
         answer = target_net.step(x_prev, previous.clamp(min=0), x0, known, target_memory, scale)
         answer = torch.where((previous < 0)[:, None, None], guess, answer)
@@ -517,8 +519,8 @@ def distill_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[
     motion, audio, mask, guides, positions, valid = body_inputs(model, batch, generator)
     b = len(motion)
     speaker = batch["speaker"]
-    keep = torch.ones(b, 2)
-    both_keep = torch.cat([keep, torch.zeros(b, 2)])
+    keep = torch.ones(b, 2, device=motion.device)
+    both_keep = torch.cat([keep, torch.zeros(b, 2, device=motion.device)])
     face_cond = face_conditions(model, audio)
     heard = face_cond[0]
     with torch.no_grad():

@@ -35,7 +35,17 @@ from convodrive.motion.channels import ARKIT_NAMES
 from convodrive.plumbing.errors import UserError
 from convodrive.training.config import Preset
 from convodrive.training.corpus_data import audio_stats, corpus_facts, open_corpus, train_stats
-from convodrive.training.recipe import Batch, DataSpec, GraphSpec, Recipe, StartingPoint, StepContext, TrainingData
+from convodrive.training.recipe import (
+    Batch,
+    DataSpec,
+    GraphSpec,
+    Recipe,
+    StartingPoint,
+    StepContext,
+    TrainingData,
+    model_device,
+    to_device,
+)
 from convodrive.training.windows import CorpusWindows
 
 _SMALL = {
@@ -207,7 +217,8 @@ class ProbTalkRecipe(Recipe):
             motion, mask = batch["motion"], batch["mask"]
             return model.vq.loss(motion, mask, ctx.generator, part_weights(model.config, mask.device))
         batch = crop(batch, model.config, ctx.generator)
-        known = context_masks(batch["motion"].shape[0], batch["motion"].shape[1], model.config, ctx.generator)
+        motion = batch["motion"]
+        known = context_masks(motion.shape[0], motion.shape[1], model.config, ctx.generator).to(motion.device)
         if model.stage == "predictor":
             return predictor_loss(model, batch, known, ctx.generator)
         return refiner_loss(model, batch, known, ctx.generator)
@@ -218,7 +229,7 @@ class ProbTalkRecipe(Recipe):
         figures = self.mean_validation_figures(model, data, examples=128)
         if stage == "vq" and data.val is not None and len(data.val):
             assert isinstance(model, ProbTalk)
-            batch = data.val.batch(np.arange(min(len(data.val), 128)))
+            batch = to_device(data.val.batch(np.arange(min(len(data.val), 128))), model_device(model))
             figures.update(reconstruction_fd(lambda motion: model.vq(motion)[0], batch))
         return figures
 
@@ -275,14 +286,14 @@ def reconstruction_fd(reconstruct: Callable[[torch.Tensor], torch.Tensor], batch
     than the PQ-VAE's own reconstruction: the vq stage already shows the best the later ones can reach."""
     motion, mask = batch["motion"], batch["mask"]
     recon = reconstruct(motion * mask)
-    kept = mask.amin(dim=0).flatten().bool()
+    kept = mask.amin(dim=0).flatten().bool().cpu()
     out = {}
     for part in ("face", "body"):
         cols = torch.arange(rep.GROUPS[part].start, rep.GROUPS[part].stop)
         cols = cols[kept[cols]]
         if len(cols):
-            real = motion[..., cols].flatten(0, 1).double().numpy()
-            made = recon[..., cols].flatten(0, 1).double().numpy()
+            real = motion[..., cols].flatten(0, 1).double().cpu().numpy()
+            made = recon[..., cols].flatten(0, 1).double().cpu().numpy()
             out[f"recon_fd_g_{part}"] = fd_g([made], [real])
     return out
 
@@ -332,8 +343,8 @@ def predictor_loss(
         target = model.vq.encode(motion).flatten(1)  # (B, N)
     b, n = target.shape
     ratio = torch.cos(torch.rand(b, generator=generator) * (math.pi / 2))
-    count = torch.ceil(ratio * n).clamp(min=1).long()
-    rank = torch.rand(b, n, generator=generator).argsort(dim=1).argsort(dim=1)
+    count = torch.ceil(ratio * n).clamp(min=1).long().to(target.device)
+    rank = torch.rand(b, n, generator=generator).argsort(dim=1).argsort(dim=1).to(target.device)
     masked = rank < count[:, None]
     tokens = torch.where(masked, torch.full_like(target, config.mask_id), target)
     audio = model.audio_norm(batch["audio"])
@@ -353,7 +364,7 @@ def refiner_loss(
     motion, mask = batch["motion"], batch["mask"]
     with torch.no_grad():
         coarse = model.vq.decode(model.vq.encode(motion * mask))
-        coarse = coarse + config.refiner_noise * torch.randn(coarse.shape, generator=generator)
+        coarse = coarse + config.refiner_noise * torch.randn(coarse.shape, generator=generator).to(coarse.device)
     combined = known * motion + (1 - known) * coarse
     refined = model.refiner(combined, model.audio_norm(batch["audio"]), known, batch["speaker"])
     weight = part_weights(config, mask.device)
