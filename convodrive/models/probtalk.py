@@ -17,8 +17,9 @@ Beyond the paper: the partner's log-mel is a second audio stream (``dyadic``), s
 behaviour is learned too; the speaker's modulation and each layer's cross-attention keys and
 values depend only on the window's conditions, so ``Predictor.memory`` computes them once per
 window and ``Predictor.logits`` reuses them in every MaskGIT pass (the runtime exports the two as
-separate graphs). No batch norm anywhere (channel-wise layer norm instead): training with N
-processes equals training with one, and nothing depends on the batch at run time.
+separate graphs). Batch norm only in the PQ-VAE (``VQ_NORM``, the reference's; its running
+statistics make it a fixed affine map at run time); the predictor and refiner use channel-wise layer
+norm, so nothing depends on the batch at run time.
 
 Shapes: motion (B, frames, D) normalised features (``convodrive.motion.representation``), audio
 (B, frames, 2, bands) log-mel of self and partner, codes (B, tokens, G), tokens flattened
