@@ -69,6 +69,11 @@ class ProbTalkConfig:
     PQ-VAE left them out (its reconstruction's lids never passed a third of the real blink's
     height), and so the sampled codes never blinked. FD_g face of the real validation motion with
     its blinks taken out: 6.7."""
+    spine_part: bool = False
+    """With ``balance_parts``: spine1..3 (the first 18 channels of the upper body) count as a part of
+    their own. Their motion is slow posture drift and breathing, a few hundredths of a radian; as 18
+    of the upper body's 66 channels the PQ-VAE left them at their mean, which alone cost 13 of its
+    reconstruction's 22.6 FD_g body on the validation split (9.5 without them)."""
     # conditions
     dyadic: bool = True
     """Hear the partner's audio as a second stream (False: self only, to measure what it adds)."""

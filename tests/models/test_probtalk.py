@@ -169,6 +169,28 @@ def test_eyelid_part_weighs_the_two_lids_as_much_as_a_whole_part() -> None:
     assert lid_total > 10 * float(plain[lids].sum()), "without it the lids weigh 2/52 of ARKit's share"
 
 
+def test_spine_part_weighs_the_three_spine_joints_as_much_as_a_whole_part() -> None:
+    """``spine_part``: spine1..3's 18 channels carry as much of the error as the head or the rest of
+    the upper body, with the eyelids a part too when both are on."""
+    import dataclasses
+
+    from convodrive.training.recipes.probtalk import SPINE_CHANNELS, part_weights
+
+    assert SPINE_CHANNELS == 18
+    weight = part_weights(dataclasses.replace(TINY, balance_parts=True, spine_part=True, eyelid_part=True))
+    plain = part_weights(dataclasses.replace(TINY, balance_parts=True))
+    assert weight is not None and plain is not None
+    assert float(weight.mean()) == pytest.approx(1.0)
+    upper = rep.PARTS["upper"]
+    spine = list(range(upper.start, upper.start + 18))
+    rest = list(range(upper.start + 18, upper.stop))
+    head = float(weight[rep.PARTS["head"]].sum())
+    assert float(weight[spine].sum()) == pytest.approx(head) == pytest.approx(float(weight[rest].sum()))
+    assert float(weight[spine].sum()) > 2.5 * float(plain[spine].sum()), (
+        "without it the spine weighs 18/66 of the upper body's share"
+    )
+
+
 def test_balanced_parts_weigh_a_small_part_as_much_as_a_large_one() -> None:
     """``balance_parts``: the same error confined to the head's 12 channels or to the hands' 180
     costs the PQ-VAE alike (channel-alike, the hands' costs 15 times more), and the loss keeps

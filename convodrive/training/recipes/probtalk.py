@@ -257,20 +257,26 @@ class ProbTalkRecipe(Recipe):
 # ----------------------------------------------------------------------------------- the stages
 EYELIDS = ("eyeBlinkLeft", "eyeBlinkRight")
 """The ARKit channels ``eyelid_part`` weighs as a part of their own."""
+SPINE_CHANNELS = rep.SIXD * sum(joint.startswith("spine") for joint in rep.PART_JOINTS["upper"])
+"""spine1..3's 6D blocks, the first channels of the upper body: ``spine_part`` weighs them as a part."""
 
 
 def part_weights(config: ProbTalkConfig, device: torch.device | str = "cpu") -> torch.Tensor | None:
     """(D,) error weights under which each motion part of the layout (jaw, eyes, ARKit, head, upper
-    body, hands; the eyelids too with ``eyelid_part``) counts alike, whatever its number of
+    body, hands; the eyelids with ``eyelid_part``, the spine with ``spine_part``) counts alike, whatever its number of
     channels; voice activity keeps one channel's weight. The mean weight is 1, so the loss keeps its
     scale. None when ``balance_parts`` is off. On ``device``, the batch's: a CPU tensor times a CUDA
     mask fails."""
     if not config.balance_parts:
         return None
     parts = [np.arange(part.start, part.stop) for name, part in rep.PARTS.items() if name != "vad"]
+    own = []
     if config.eyelid_part:
-        lids = rep.PARTS["arkit"].start + np.array([ARKIT_NAMES.index(n) for n in EYELIDS])
-        parts = [np.setdiff1d(p, lids) for p in parts] + [lids]
+        own.append(rep.PARTS["arkit"].start + np.array([ARKIT_NAMES.index(n) for n in EYELIDS]))
+    if config.spine_part:
+        own.append(rep.PARTS["upper"].start + np.arange(SPINE_CHANNELS))
+    for columns in own:
+        parts = [np.setdiff1d(p, columns) for p in parts] + [columns]
     weight = np.ones(rep.FEATURE_DIM)
     channels = sum(len(p) for p in parts)
     for columns in parts:
