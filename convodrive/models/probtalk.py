@@ -73,7 +73,10 @@ class ProbTalkConfig:
     """With ``balance_parts``: spine1..3 (the first 18 channels of the upper body) count as a part of
     their own. Their motion is slow posture drift and breathing, a few hundredths of a radian; as 18
     of the upper body's 66 channels the PQ-VAE left them at their mean, which alone cost 13 of its
-    reconstruction's 22.6 FD_g body on the validation split (9.5 without them)."""
+    reconstruction's 22.6 FD_g body on the validation split (9.5 without them). Weighed as a part
+    (small preset, seed 0) it helped little: validation recon FD_g body 28.7 against 32.0 at step
+    3000 of 8000, face 9.7 against 9.2, the spine still about 11 of the body's FD at step 2300; off
+    in the presets."""
     # conditions
     dyadic: bool = True
     """Hear the partner's audio as a second stream (False: self only, to measure what it adds)."""
