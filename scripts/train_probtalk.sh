@@ -50,11 +50,11 @@ fgd=${FGD_MODEL:-convodrive/eval/fgd_model}
 
 # The chosen folder replaces the shipped one whole (written beside it, then renamed), with the
 # card's last section: how it was made, what it scores, what it may be used for.
-"$bin/python" - "$runs" "$model" "$corpus" "$started" "$trained" "$threads" <<'EOF'
+"$bin/python" - "$runs" "$model" "$corpus" "$started" "$trained" <<'EOF'
 import json, os, platform, shutil, subprocess, sys, time
 from pathlib import Path
 
-runs, model, corpus, started, trained, threads = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3], *map(int, sys.argv[4:6]), sys.argv[6]
+runs, model, corpus, started, trained = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3], *map(int, sys.argv[4:6])
 table = json.loads((runs / "compare" / "compare.json").read_text())
 results = table["results"]
 fp32, int8 = results["probtalk"]["FGD holistic"], results["probtalk-int8"]["FGD holistic"]
