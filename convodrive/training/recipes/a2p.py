@@ -493,8 +493,8 @@ def consistency_loss(
     step, previous = n * skip - 1, (n - 1) * skip - 1
     scale = (1 + torch.rand(b, generator=generator) * (guidance_max - 1)).to(device)
     noise = torch.randn(x0.shape, generator=generator).to(device)
-    x = noised_at(x0, step, noise, config)
     abar = alpha_bar(config).to(device)
+    x = noised(x0, noise, abar[step][:, None, None])
     with torch.no_grad():
         both = teacher.step(
             torch.cat([x, x]), torch.cat([step, step]), torch.cat([x0, x0]), torch.cat([known, known]), teacher_memory
