@@ -1,4 +1,4 @@
-"""``convodrive export CHECKPOINT --out MODEL_DIR [--int8]``: ONNX graphs, model.json, model card."""
+"""``convodrive export CHECKPOINT --out MODEL_DIR [--int8 [--float GRAPH,...]]``: ONNX graphs, model.json, model card."""
 
 from __future__ import annotations
 
@@ -15,13 +15,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("checkpoint", type=Path, help="checkpoint folder (runs/.../checkpoints/step-N) or run folder")
     p.add_argument("--out", type=Path, required=True, help="model folder to write (replaced if it is one)")
     p.add_argument("--int8", action="store_true", help="quantise MatMuls to int8 (dynamic) and record the cost")
+    p.add_argument(
+        "--float",
+        dest="keep_float",
+        metavar="GRAPH[,GRAPH...]",
+        default="",
+        help="with --int8: keep these graphs float (where int8 costs most, e.g. a denoiser's step)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from convodrive.training.export import export_model
 
-    result = export_model(args.checkpoint, args.out, int8=args.int8)
+    keep_float = [name for name in args.keep_float.split(",") if name]
+    result = export_model(args.checkpoint, args.out, int8=args.int8, keep_float=keep_float)
     worst = max(e for errs in result.parity.values() for e in errs.values())
     print(f"exported {len(result.parity)} graph(s) to {result.folder} (parity max abs err {worst:.2g})")
     if result.int8:

@@ -5,7 +5,9 @@ Runtime against torch at every parity size (exporters can silently bake an examp
 a graph; a size it was not traced at shows that). A graph off by more than the tolerance stops the
 export. ``--int8`` quantises the MatMul nodes of each graph dynamically (weights int8, activations
 quantised at run time; convolutions stay float, as quantised convs can be far slower on a CPU)
-and measures what that costs against the float graph. The folder is written beside its
+and measures what that costs against the float graph; ``--float GRAPH,...`` keeps the named graphs
+float in an int8 folder, for a model whose int8 cost sits in a few graphs (a diffusion denoiser's
+step, whose error compounds over the sampling steps) and whose float size is too large to ship. The folder is written beside its
 destination and renamed into place, so it is complete or absent.
 """
 
@@ -20,6 +22,7 @@ import shutil
 import subprocess
 import tempfile
 import warnings
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
@@ -176,13 +179,26 @@ def _prepare_destination(out: Path) -> None:
 
 
 def export_model(
-    checkpoint: str | Path, out: str | Path, int8: bool = False, tolerance: float = PARITY_TOLERANCE
+    checkpoint: str | Path,
+    out: str | Path,
+    int8: bool = False,
+    tolerance: float = PARITY_TOLERANCE,
+    keep_float: Collection[str] = (),
 ) -> ExportResult:
+    """``keep_float``: with ``int8``, the graphs that stay float."""
     out = Path(out)
+    if keep_float and not int8:
+        raise UserError("--float names the graphs an int8 export keeps float: it needs --int8")
     ckpt, recipe, config, spec, net = restore(checkpoint)
     _prepare_destination(out)
     stage = ckpt.state["stage"]
     graphs = list(recipe.export_graphs(net, config, spec, stage))
+    unknown = sorted(set(keep_float) - {g.name for g in graphs})
+    if unknown:
+        raise UserError(
+            f"--float {','.join(unknown)}: no such graph in {recipe.name}'s {stage} export "
+            f"(graphs: {', '.join(g.name for g in graphs)})"
+        )
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
@@ -199,7 +215,7 @@ def export_model(
                     f"export of graph '{g.name}' failed the parity check: ONNX Runtime differs from torch by {worst:.3g} (> {tolerance:g}) at {parity_report[g.name]}"
                 )
             file = float_path.name
-            if int8:
+            if int8 and g.name not in keep_float:
                 q_path = tmp / f"{g.name}.int8.onnx"
                 quantise_int8(float_path, q_path)
                 int8_report[g.name] = int8_cost(g, float_path, q_path)
@@ -235,7 +251,9 @@ def export_model(
             },
             "graphs": graph_meta,
             "parity": {"tolerance": tolerance, "max_abs_err": parity_report},
-            "int8": {"quantised": "MatMul, dynamic", "cost": int8_report} if int8 else None,
+            "int8": {"quantised": "MatMul, dynamic", "cost": int8_report, "float": sorted(keep_float)}
+            if int8
+            else None,
             "files": files,
         }
         (tmp / MODEL_JSON).write_text(json.dumps(meta, indent=2), encoding="utf-8")
@@ -320,4 +338,6 @@ def model_card(recipe: Recipe, config: Any, spec: DataSpec, meta: dict[str, Any]
             f"  - {g}: max abs {c['max_abs_err']:.3g}, relative RMS {c['relative_rms_err']:.3g}"
             for g, c in meta["int8"]["cost"].items()
         ]
+        if meta["int8"].get("float"):
+            lines.append("- kept float: " + ", ".join(f"`{g}`" for g in meta["int8"]["float"]))
     return "\n".join(lines) + "\n"

@@ -139,7 +139,9 @@ def train(request: TrainRequest) -> TrainResult:
         distributed.stop(procs)
 
 
-_MAY_CHANGE_ON_RESUME = ("steps", "log_every", "val_every", "checkpoint_every", "keep_checkpoints")
+_MAY_CHANGE_ON_RESUME = ("steps", "decay_steps", "log_every", "val_every", "checkpoint_every", "keep_checkpoints")
+"""Settings a resumed run may change: how long it runs (a longer run stretches its learning-rate decay
+with it, the rate jumping to where the longer schedule has it) and how often it reports."""
 
 
 def _identity(recipe: Recipe, preset: str, stage: str, model_cfg: Any, train_cfg: TrainConfig) -> dict[str, Any]:

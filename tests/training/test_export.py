@@ -60,6 +60,38 @@ def test_int8_quantises_matmuls_and_measures_the_cost(fgd_run: Path, tmp_path: P
     assert "ConvInteger" not in ops  # convolutions stay float
 
 
+def test_an_int8_export_keeps_the_graphs_named_float(fgd_run: Path, tmp_path: Path) -> None:
+    out = run_cli("export", str(fgd_run), "--out", str(tmp_path / "mixed"), "--int8", "--float", "encoder_face")
+    assert out.returncode == 0, out.stderr
+    meta = json.loads((tmp_path / "mixed" / "model.json").read_text())
+    assert meta["graphs"]["encoder_face"]["file"] == "encoder_face.onnx"
+    assert meta["graphs"]["encoder_body"]["file"] == "encoder_body.int8.onnx"
+    assert set(meta["int8"]["cost"]) == {"encoder_body", "encoder_holistic"} and meta["int8"]["float"] == [
+        "encoder_face"
+    ]
+    assert sorted(p.name for p in (tmp_path / "mixed").glob("*.onnx")) == [
+        "encoder_body.int8.onnx",
+        "encoder_face.onnx",
+        "encoder_holistic.int8.onnx",
+    ]
+    folder = load_model_folder(tmp_path / "mixed")  # its hashes check out
+    assert folder.graph_path("encoder_face").name == "encoder_face.onnx"
+    assert "kept float: `encoder_face`" in (tmp_path / "mixed" / "MODEL_CARD.md").read_text()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--int8", "--float", "encoder_hands"], "--float encoder_hands: no such graph in fgd's"),
+        (["--float", "encoder_face"], "--float names the graphs an int8 export keeps float: it needs --int8"),
+    ],
+)
+def test_a_wrong_float_list_is_one_line(fgd_run: Path, tmp_path: Path, args: list[str], message: str) -> None:
+    out = run_cli("export", str(fgd_run), "--out", str(tmp_path / "model"), *args)
+    assert out.returncode == 2 and message in out.stderr and "Traceback" not in out.stderr
+    assert not (tmp_path / "model").exists()
+
+
 def test_a_shape_baked_into_a_graph_fails_the_parity_check(tmp_path: Path) -> None:
     class Scale(torch.nn.Module):
         def forward(self, x: torch.Tensor) -> torch.Tensor:

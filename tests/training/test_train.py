@@ -100,6 +100,10 @@ def test_a_resumed_run_continues_exactly(tiny_corpus: Path, tmp_path: Path) -> N
     assert log[0] == "step,wall_s,split,name,value" and any(line.startswith("8,") for line in log)
     other = run_cli(*common, "--steps", "8", "--set", "channels=5", "--out", str(tmp_path / "resumed"))
     assert other.returncode == 2 and "other settings" in other.stderr
+    # A longer run may stretch its learning-rate decay with it.
+    longer = run_cli(*common, "--steps", "10", "--set", "decay_steps=10", "--out", str(tmp_path / "resumed"))
+    assert longer.returncode == 0, longer.stderr
+    assert any(line.startswith("10,") for line in (tmp_path / "resumed" / "metrics.csv").read_text().splitlines())
 
 
 @pytest.mark.parametrize(
