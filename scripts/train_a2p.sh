@@ -131,14 +131,14 @@ rows = [f"| {m} | " + " | ".join(cell(r.get(c)) for c in columns) + " |" for m, 
 stages = ("lip", "face", "vq", "guide", "body", "distill")
 runs_json = {s: json.loads((runs / s / "run.json").read_text()) for s in stages}
 steps = ", ".join(f"{s} {run['train_config']['steps']}" for s, run in runs_json.items())
-where = ", ".join(sorted({f"{run['device']} (torch {run['torch']})" for run in runs_json.values()}))
+where = ", ".join(f"{s} {run['device']} (torch {run['torch']})" for s, run in runs_json.items())
 env = "".join(f"{k}={v} " for k, v in sorted(os.environ.items()) if k in ("SCALE", "SHIP_ONLY", "SAMPLES", "MAX_CONVERSATIONS") or k.startswith("STEPS_"))
 card = f"""
 ## How these weights were made
 
 - command: `{env}scripts/train_a2p.sh {corpus} {runs}` at commit `{commit}`
   (stages {steps} steps, `small` preset, seed 0)
-- trained on: {where}
+- trained on (stage by stage): {where}
 - corpus: made by `convodrive corpus make --hours 2 --seed 0` (speech by espeak-ng, motion by convodrive's
   `procedural` generator); its test split scores the model below
 - wall time: {(trained - started) / 60:.0f} min to train, {(time.time() - started) / 60:.0f} min in all, on
