@@ -7,8 +7,8 @@ export. ``--int8`` quantises the MatMul nodes of each graph dynamically (weights
 quantised at run time; convolutions stay float, as quantised convs can be far slower on a CPU)
 and measures what that costs against the float graph; ``--float GRAPH,...`` keeps the named graphs
 float in an int8 folder, for a model whose int8 cost sits in a few graphs (a diffusion denoiser's
-step, whose error compounds over the sampling steps) and whose float size is too large to ship. The folder is written beside its
-destination and renamed into place, so it is complete or absent.
+step, whose error compounds over the sampling steps) and whose float size is too large to ship.
+The folder is written beside its destination and renamed into place, so it is complete or absent.
 """
 
 from __future__ import annotations
