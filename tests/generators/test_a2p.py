@@ -170,6 +170,13 @@ def test_guidance_and_sampler_options_change_the_motion(model: Path) -> None:
     np.testing.assert_allclose(base.face, guided.face, atol=1e-6)  # the face's guidance is its own
     distilled = A2PGenerator({"model": str(model), "steps": 1}).generate(audio)[0]
     assert np.abs(base.pose - distilled.pose).max() > 1e-5
+    # The face may take its own number of steps; face_steps equal to steps is the default.
+    two = A2PGenerator({"model": str(model), "steps": 2}).generate(audio)[0]
+    same = A2PGenerator({"model": str(model), "steps": 2, "face_steps": 2})
+    np.testing.assert_array_equal(same.generate(audio)[0].face, two.face)
+    one_face = A2PGenerator({"model": str(model), "steps": 2, "face_steps": 1})
+    assert np.abs(one_face.generate(audio)[0].face - two.face).max() > 1e-5
+    assert one_face.report()["face_steps"] == 1 and one_face.report()["steps"] == 2
 
 
 def test_bad_options_and_folders_are_one_line(model: Path, tmp_path: Path) -> None:
@@ -180,6 +187,8 @@ def test_bad_options_and_folders_are_one_line(model: Path, tmp_path: Path) -> No
     assert len(out.stderr.splitlines()) == 1
     with pytest.raises(UserError, match="steps must be at most 10"):
         A2PGenerator({"model": str(model), "steps": 11})  # the tiny grid: 1000 steps / 100
+    with pytest.raises(UserError, match="face_steps must be at most 10"):
+        A2PGenerator({"model": str(model), "face_steps": 11})
     with pytest.raises(UserError, match="mode"):
         A2PGenerator({"model": str(model), "mode": "batch"})
     meta = json.loads((model / "model.json").read_text())

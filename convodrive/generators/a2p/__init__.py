@@ -69,6 +69,12 @@ class A2POptions(LearnedOptions):
     steps: int = option(
         0, low=0, high=1000, help=f"denoising steps; 0: {DISTILLED_STEPS} distilled, {DDIM_STEPS} with ddim"
     )
+    face_steps: int = option(
+        0,
+        low=0,
+        high=1000,
+        help="the face's denoising steps, when they should differ from the body's; 0: as steps",
+    )
     guidance_face: float = option(2.0, low=1.0, high=20.0, help="classifier-free guidance scale of the face (1: none)")
     guidance_body: float = option(2.0, low=1.0, high=20.0, help="classifier-free guidance scale of the body (1: none)")
     top_p: float = option(
@@ -133,8 +139,12 @@ class A2PGenerator(LearnedGenerator):
         distilled = self.options.sampler == "distilled"
         self.steps = self.options.steps or (DISTILLED_STEPS if distilled else DDIM_STEPS)
         limit = int(arch["diffusion_steps"]) // self.skip if distilled else int(arch["diffusion_steps"])
-        if self.steps > limit:
-            raise UserError(f"generator a2p: steps must be at most {limit} with the {self.options.sampler} sampler")
+        self.face_steps = self.options.face_steps or self.steps
+        for name, value in (("steps", self.steps), ("face_steps", self.face_steps)):
+            if value > limit:
+                raise UserError(
+                    f"generator a2p: {name} must be at most {limit} with the {self.options.sampler} sampler"
+                )
         prefix = "_student" if distilled else ""
         self.lip = self.graph("lip")
         self.face_memory, self.face_step = self.graph(f"face{prefix}_memory"), self.graph(f"face{prefix}_step")
@@ -171,7 +181,15 @@ class A2PGenerator(LearnedGenerator):
         out[..., VAD.start + 1] = lip[1, :, -1]
         conditional = {"audio": audio[None], "lip": lip[:1]}
         out[..., FACE] = self._sample(
-            self.face_memory, self.face_step, conditional, False, FACE, context, rngs, self.options.guidance_face
+            self.face_memory,
+            self.face_step,
+            conditional,
+            False,
+            FACE,
+            context,
+            rngs,
+            self.options.guidance_face,
+            self.face_steps,
         )
         self._hear(state, audio, start)
         self._guide(state, start + window, rngs)
@@ -183,7 +201,15 @@ class A2PGenerator(LearnedGenerator):
             "guide_valid": valid,
         }
         out[..., BODY] = self._sample(
-            self.body_memory, self.body_step, conditional, True, BODY, context, rngs, self.options.guidance_body
+            self.body_memory,
+            self.body_step,
+            conditional,
+            True,
+            BODY,
+            context,
+            rngs,
+            self.options.guidance_body,
+            self.steps,
         )
         state.index += 1
         self.windows += 1
@@ -199,6 +225,7 @@ class A2PGenerator(LearnedGenerator):
         context: np.ndarray | None,
         rngs: Sequence[np.random.Generator],
         guidance: float,
+        steps: int,
     ) -> np.ndarray:
         """(K, window, part dims) from one denoiser: its memory once, then the sampling loop.
         ``conditions`` hold one row for all takes, or one per take (``per_take``)."""
@@ -237,8 +264,8 @@ class A2PGenerator(LearnedGenerator):
 
         noise = noise_like(rngs, (window, dim))
         if distilled:
-            return consistency_sample(x0, noise, self.steps, self.alpha_bar, self.skip, rngs, known, known_mask)
-        return ddim_sample(guided(x0, guidance) if cfg else x0, noise, self.steps, self.alpha_bar, known, known_mask)
+            return consistency_sample(x0, noise, steps, self.alpha_bar, self.skip, rngs, known, known_mask)
+        return ddim_sample(guided(x0, guidance) if cfg else x0, noise, steps, self.alpha_bar, known, known_mask)
 
     # -- guide poses -------------------------------------------------------------------------------
     def _hear(self, state: _Stream, audio: np.ndarray, start: int) -> None:
@@ -321,6 +348,7 @@ class A2PGenerator(LearnedGenerator):
             "mode": self.options.mode,
             "sampler": self.options.sampler,
             "steps": self.steps,
+            "face_steps": self.face_steps,
             "guidance": {"face": self.options.guidance_face, "body": self.options.guidance_body},
             "top_p": self.options.top_p,
             "window": self.plan.window,
