@@ -2,7 +2,7 @@
 # Reproduce the a2p weights shipped in convodrive/generators/a2p/model/ from a fresh clone: a
 # 2-hour bootstrap corpus, the `a2p` recipe's `small` preset stage by stage, consistency
 # distillation, ONNX exports in fp32, int8 and "mixed" (int8 but for the denoisers' step graphs,
-# whose error compounds over the sampling steps), a comparison of the three (distilled and DDIM
+# whose error compounds over the sampling steps, and the teachers' memories), a comparison of the three (distilled and DDIM
 # samplers) with knn and random on the corpus's test split, and the chosen folder with its card:
 # the smallest export that costs under 5 % on FGD holistic with both samplers and fits in 30 MB.
 #
@@ -81,7 +81,7 @@ rm -rf "$runs/fp32" "$runs/int8" "$runs/mixed"
 "$bin/convodrive" export "$runs/distill" --out "$runs/fp32"
 "$bin/convodrive" export "$runs/distill" --out "$runs/int8" --int8
 "$bin/convodrive" export "$runs/distill" --out "$runs/mixed" --int8 \
-    --float face_step,body_step,face_student_step,body_student_step
+    --float face_step,body_step,face_student_step,body_student_step,face_memory,body_memory
 fgd=${FGD_MODEL:-convodrive/eval/fgd_model}
 [ -f "$fgd/model.json" ] || scripts/train_fgd.sh "$corpus"
 # The teacher graphs run only with the DDIM sampler: 10 steps (with guidance) measure their int8 cost.
@@ -144,7 +144,7 @@ card = f"""
 - wall time: {(trained - started) / 60:.0f} min to train, {(time.time() - started) / 60:.0f} min in all, on
   {os.cpu_count()} CPU cores ({platform.machine()}), load average at the end {os.getloadavg()[0]:.1f}
 - shipped: the {chosen} export, {size / 1e6:.1f} MB ({', '.join(f'{e} {sizes[e] / 1e6:.1f} MB' for e in EXPORTS)});
-  int8 quantises every graph's MatMuls (dynamic), mixed all but the four denoiser step graphs. Against
+  int8 quantises every graph's MatMuls (dynamic), mixed all but the four denoiser step graphs and the teachers' memories. Against
   fp32, on the test split, {METRIC} changes by {'; '.join(f"{e}: " + ' and '.join(f'{100 * c:+.1f} % ({s})' for s, c in costs[e].items()) for e in costs)};
   the smallest export under 5 % with both samplers that fits in {LIMIT / 1e6:.0f} MB ships
 
