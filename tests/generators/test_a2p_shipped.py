@@ -1,5 +1,5 @@
 """The a2p weights shipped in the package: they load verified, fit the package's 30 MB with a card
-that says how they were made, what is int8 and what int8 costs, and both samplers run them."""
+that says how they were made, which graphs are int8 and what int8 costs, and both samplers run them."""
 
 from __future__ import annotations
 
@@ -29,10 +29,12 @@ def test_the_shipped_folder_is_verified_small_enough_and_carded() -> None:
     for needed in ("scripts/train_a2p.sh", "corpus make", "## Licence", "FGD holistic", "knn", "random"):
         assert needed in card, needed
     int8 = gen.folder.spec["int8"]
-    files = [g["file"] for g in gen.folder.spec["graphs"].values()]
-    if int8 is not None:  # what the card says is int8 is what the folder holds
-        assert set(int8["cost"]) == set(gen.folder.spec["graphs"])
-        assert all(f.endswith(".int8.onnx") for f in files)
+    graphs = gen.folder.spec["graphs"]
+    if int8 is not None:  # what model.json says is int8 (and kept float) is what the folder holds
+        kept_float = set(int8.get("float", []))
+        assert set(int8["cost"]) | kept_float == set(graphs) and not set(int8["cost"]) & kept_float
+        assert all(graphs[g]["file"] == f"{g}.int8.onnx" for g in int8["cost"])
+        assert all(graphs[g]["file"] == f"{g}.onnx" for g in kept_float)
         assert "int8" in card and "MatMul" in card
 
 
