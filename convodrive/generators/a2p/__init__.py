@@ -46,10 +46,6 @@ LIVE = (60, 48)
 """Window and context frames of ``live`` mode: a 12-frame hop."""
 FILE_CONTEXT = 30
 DISTILLED_STEPS = 4
-DISTILLED_FACE_STEPS = 1
-"""The distilled face in one step: its later steps, each fed fresh noise, leave the mouth open in
-silences (jaw shut on 83 % of self-silent test frames at 4 steps, 98 % at 1), where the body gains
-from all four."""
 DDIM_STEPS = 100
 FACE = rep.GROUPS["face"]
 BODY = rep.GROUPS["body"]
@@ -77,7 +73,7 @@ class A2POptions(LearnedOptions):
         0,
         low=0,
         high=1000,
-        help=f"the face's denoising steps; 0: {DISTILLED_FACE_STEPS} distilled, as steps with ddim",
+        help="the face's denoising steps, when they should differ from the body's; 0: as steps",
     )
     guidance_face: float = option(2.0, low=1.0, high=20.0, help="classifier-free guidance scale of the face (1: none)")
     guidance_body: float = option(2.0, low=1.0, high=20.0, help="classifier-free guidance scale of the body (1: none)")
@@ -143,7 +139,7 @@ class A2PGenerator(LearnedGenerator):
         distilled = self.options.sampler == "distilled"
         self.steps = self.options.steps or (DISTILLED_STEPS if distilled else DDIM_STEPS)
         limit = int(arch["diffusion_steps"]) // self.skip if distilled else int(arch["diffusion_steps"])
-        self.face_steps = self.options.face_steps or (DISTILLED_FACE_STEPS if distilled else self.steps)
+        self.face_steps = self.options.face_steps or self.steps
         for name, value in (("steps", self.steps), ("face_steps", self.face_steps)):
             if value > limit:
                 raise UserError(
