@@ -2,8 +2,9 @@
 # Reproduce the a2p weights shipped in convodrive/generators/a2p/model/ from a fresh clone: a
 # 2-hour bootstrap corpus, the `a2p` recipe's `small` preset stage by stage, consistency
 # distillation, ONNX exports in fp32, int8 and "mixed" (int8 but for the denoisers' step graphs,
-# whose error compounds over the sampling steps, and the teachers' memories), a comparison of the three (distilled and DDIM
-# samplers) with knn and random on the corpus's test split, and the chosen folder with its card:
+# whose error compounds over the sampling steps, and the teachers' memories), a comparison of the
+# three (distilled and DDIM samplers) with knn and random on the corpus's test split, and the
+# chosen folder with its card:
 # the smallest export that costs under 5 % on FGD holistic with both samplers and fits in 30 MB.
 #
 #   scripts/setup.sh --dev && scripts/train_a2p.sh [CORPUS_DIR] [RUN_DIR] [MODEL_DIR]
