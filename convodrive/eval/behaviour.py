@@ -29,6 +29,7 @@ from scipy.signal import find_peaks
 from convodrive.audio.source import DyadicAudio
 from convodrive.eval.segments import Segments
 from convodrive.motion.channels import BLENDSHAPE_INDEX as B
+from convodrive.motion.channels import VAD_ON
 from convodrive.motion.clip import MotionClip
 from convodrive.motion.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from convodrive.motion.skeleton import JOINT_INDEX as J
@@ -181,7 +182,7 @@ def behaviour_figures(clip: MotionClip, audio: DyadicAudio, reference: Segments 
         [[0.0], np.degrees(np.linalg.norm(np.diff(clip.pose[:, arm_joints], axis=0), axis=2).mean(axis=1)) * fps]
     )
     smiling = clip.face[:, [B["mouthSmileLeft"], B["mouthSmileRight"]]].mean(axis=1) >= SMILE
-    vad_self, vad_other = clip.vad[:, 0] > 0, clip.vad[:, 1] > 0
+    vad_self, vad_other = clip.vad[:, 0] > VAD_ON, clip.vad[:, 1] > VAD_ON
 
     def per_minute(events: np.ndarray, mask: np.ndarray) -> float | None:
         return round(float(events[mask].sum() / minutes(mask)), 2) if minutes(mask) > 0 else None

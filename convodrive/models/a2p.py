@@ -127,6 +127,8 @@ class A2PConfig:
     distill_skip: int = 20
     """Diffusion steps between neighbouring points of the consistency-distillation grid."""
     distill_ema: float = 0.95
+    face_student_steps: int = 0
+    """The face student's steps when the generator's ``face_steps`` is 0; 0: as the body's ``steps``."""
     face_guidance_max: float = 10.0
     body_guidance_max: float = 4.0
     """Students learn every guidance scale in [1, max] (the reference samples face 10, body 2)."""

@@ -74,6 +74,8 @@ EYE_LOOK_PITCH_RAD = math.radians(25.0)
 
 VAD_NAMES: tuple[str, str] = ("self", "other")
 """Columns of a clip's voice-activity array: self (channel 0) and the partner (channel 1)."""
+VAD_ON = 0.5
+"""Voice activity above which a side counts as speaking (a learned model's is a soft value in [0, 1])."""
 
 
 class ConversationState(enum.IntEnum):
@@ -95,7 +97,7 @@ class ConversationState(enum.IntEnum):
         return cls.SILENCE
 
     @classmethod
-    def from_vad(cls, vad: np.ndarray, threshold: float = 0.5) -> np.ndarray:
+    def from_vad(cls, vad: np.ndarray, threshold: float = VAD_ON) -> np.ndarray:
         """(T,) int8 states from (T, 2) voice activity of self and the partner."""
         vad = np.asarray(vad)
         speaking, listening = vad[:, 0] > threshold, vad[:, 1] > threshold

@@ -84,3 +84,17 @@ def test_posture_shifts_are_counted_once_each():
     clip.pose[:, J["spine3"], 0] = np.radians(1.2 * np.sin(2 * np.pi * 0.25 * t))  # breathing moves the chest
     shifts = posture_shifts(clip) / FPS
     assert len(shifts) == 3 and np.allclose(shifts, [10.5, 25.5, 45.5], atol=1.01)
+
+
+def test_a_soft_voice_activity_counts_as_speaking_only_above_one_half():
+    """A learned model's voice activity is a regressed value in [0, 1]: 0.1 while the partner talks
+    is silence, not a self that talks over its partner."""
+    n = 6 * FPS
+    partner = np.zeros(n * 16000 // FPS, np.float32)
+    partner[16000 : 5 * 16000] = 0.2 * np.random.default_rng(0).standard_normal(4 * 16000)
+    audio = DyadicAudio(np.full_like(partner, 1e-4), partner)
+    clip = MotionClip.neutral(n)
+    clip.vad[:, 0] = 0.1
+    clip.vad[: FPS // 2, 0] = 0.9  # half a second of talking before the partner starts
+    f = behaviour_figures(clip, audio, Segments((), ((1.0, 5.0),)))
+    assert f["voice_activity"]["self_on_when_only_partner_speaks"] == 0.0

@@ -7,6 +7,7 @@ options and mistakes are one line; the shipped weights drive a run that loads no
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 import tracemalloc
@@ -178,6 +179,25 @@ def test_guidance_and_sampler_options_change_the_motion(model: Path) -> None:
     one_face = A2PGenerator({"model": str(model), "steps": 2, "face_steps": 1})
     assert np.abs(one_face.generate(audio)[0].face - two.face).max() > 1e-5
     assert one_face.report()["face_steps"] == 1
+
+
+def test_a_model_may_name_its_own_face_student_steps(model: Path, tmp_path: Path) -> None:
+    """The shipped students' face wants 1 step (the jaw shuts through silences), the body 4: the
+    recipe writes the face's into model.json, the generator takes it unless told otherwise."""
+    own = tmp_path / "own"
+    shutil.copytree(model, own)
+    meta = json.loads((own / "model.json").read_text())
+    meta["architecture"]["face_student_steps"] = 1
+    (own / "model.json").write_text(json.dumps(meta))
+    assert A2PGenerator({"model": str(own)}).report()["face_steps"] == 1
+    assert A2PGenerator({"model": str(own), "steps": 2}).report()["face_steps"] == 1
+    assert A2PGenerator({"model": str(own), "face_steps": 3}).report()["face_steps"] == 3
+    assert A2PGenerator({"model": str(own), "sampler": "ddim", "steps": 5}).report()["face_steps"] == 5
+    audio = _audio(2.5)
+    np.testing.assert_array_equal(
+        A2PGenerator({"model": str(own), "steps": 2}).generate(audio)[0].face,
+        A2PGenerator({"model": str(model), "steps": 2, "face_steps": 1}).generate(audio)[0].face,
+    )
 
 
 def test_bad_options_and_folders_are_one_line(model: Path, tmp_path: Path) -> None:

@@ -73,10 +73,15 @@ class A2POptions(LearnedOptions):
         0,
         low=0,
         high=1000,
-        help="the face's denoising steps, when they should differ from the body's; 0: as steps",
+        help="the face's denoising steps; 0: with the distilled sampler the model's own (model.json's face_student_steps), else as steps",
     )
     guidance_face: float = option(2.0, low=1.0, high=20.0, help="classifier-free guidance scale of the face (1: none)")
-    guidance_body: float = option(2.0, low=1.0, high=20.0, help="classifier-free guidance scale of the body (1: none)")
+    guidance_body: float = option(
+        1.0,
+        low=1.0,
+        high=20.0,
+        help="classifier-free guidance scale of the body (1: none; the paper's 2 scores worse on the corpus, see the card)",
+    )
     top_p: float = option(
         0.94, low=0.01, high=1.0, help="nucleus of the guide-pose codes (lower: safer poses, less varied)"
     )
@@ -139,7 +144,8 @@ class A2PGenerator(LearnedGenerator):
         distilled = self.options.sampler == "distilled"
         self.steps = self.options.steps or (DISTILLED_STEPS if distilled else DDIM_STEPS)
         limit = int(arch["diffusion_steps"]) // self.skip if distilled else int(arch["diffusion_steps"])
-        self.face_steps = self.options.face_steps or self.steps
+        own_face_steps = int(arch.get("face_student_steps", 0)) if distilled else 0
+        self.face_steps = self.options.face_steps or own_face_steps or self.steps
         for name, value in (("steps", self.steps), ("face_steps", self.face_steps)):
             if value > limit:
                 raise UserError(
