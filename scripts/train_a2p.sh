@@ -148,7 +148,7 @@ card = f"""
 - trained on (stage by stage): {where}
 - corpus: made by `convodrive corpus make --hours 2 --seed 0` (speech by espeak-ng, motion by convodrive's
   `procedural` generator); its test split scores the model below
-- wall time: {(trained - started) / 60:.0f} min to train, {(time.time() - started) / 60:.0f} min in all, on
+- wall time: {"trained before (SHIP_ONLY), " if os.environ.get("SHIP_ONLY") == "1" else f"{(trained - started) / 60:.0f} min to train, "}{(time.time() - started) / 60:.0f} min in all, on
   {os.cpu_count()} CPU cores ({platform.machine()}), load average at the end {os.getloadavg()[0]:.1f}
 - shipped: the {chosen} export, {size / 1e6:.1f} MB ({', '.join(f'{e} {sizes[e] / 1e6:.1f} MB' for e in EXPORTS)});
   int8 quantises every graph's MatMuls (dynamic), mixed all but the four denoiser step graphs and the teachers' memories. Against
@@ -157,8 +157,8 @@ card = f"""
 
 ## Test split ({table['conversations']} conversations, {table['samples']} samples each)
 
-`a2p`: the distilled sampler (the default); `a2p-ddim`: the teacher graphs, DDIM 10 steps with
-classifier-free guidance; no suffix: the fp32 export, `-int8` and `-mixed` the others.
+`a2p`: the distilled sampler (the default); `a2p-ddim`: the teacher graphs, DDIM 10 steps; both
+with the generator's default guidance; no suffix: the fp32 export, `-int8` and `-mixed` the others.
 
 | method | {' | '.join(columns)} |
 |---|{'---|' * len(columns)}

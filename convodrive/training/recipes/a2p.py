@@ -257,6 +257,8 @@ class A2PRecipe(Recipe):
 
     def card(self, config: A2PConfig, spec: DataSpec) -> str:
         speakers = ", ".join(spec.info.get("speakers", []))
+        n = config.face_student_steps
+        face_steps = {0: "as many steps as the body", 1: "1 step"}.get(n, f"{n} steps")
         return (
             f"{self.description}\n\nFace denoiser {config.face_width}-d x {config.face_layers} layers, body denoiser "
             f"{config.body_width}-d x {config.body_layers} layers, lip regressor {config.lip_width}-d x "
@@ -265,7 +267,8 @@ class A2PRecipe(Recipe):
             f"cosine schedule of {config.diffusion_steps} steps, x0 prediction; windows up to {config.window} frames, "
             f"continued from up to {config.context} known frames. Speakers: {speakers}.\n\n"
             "Use: `convodrive drive AUDIO --generator a2p -G model=THIS_FOLDER` (options: sampler, steps, "
-            "guidance_face, guidance_body, top_p, speaker, mode)."
+            f"face_steps, guidance_face, guidance_body, top_p, speaker, mode). The distilled face takes {face_steps} "
+            "unless `face_steps` says otherwise."
         )
 
 
