@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
+
 
 @dataclasses.dataclass(frozen=True)
 class WindowPlan:
@@ -41,3 +43,23 @@ class WindowPlan:
     def windows_for(self, num_frames: int) -> int:
         """Windows that cover ``num_frames`` frames (the last may run past the end, padded)."""
         return max(1, -(-num_frames // self.hop))
+
+
+def ease_in(motion: np.ndarray, context: np.ndarray, frames: int) -> np.ndarray:
+    """``motion`` (K, window, D), its first ``C`` frames the known ``context`` (K, C, D), with its
+    first new frames offset so that they continue the context at its own velocity, the offset
+    fading linearly to nothing over ``frames``.
+
+    Inpainting pins a window's first frames to the previous window's output, but a model may still
+    start its new frames elsewhere: ProbTalk samples the codes of the token holding the seam rather
+    than fitting them to the known frames, and a2p's body turned a still wrist 80 degrees in one
+    frame at a fifth of its seams. Animation systems smooth such cuts the same way."""
+    c = context.shape[1]
+    if frames <= 0 or c < 2:
+        return motion
+    expected = 2 * context[:, -1] - context[:, -2]
+    offset = expected - motion[:, c]
+    ramp = (1 - np.arange(frames, dtype=np.float32) / frames)[None, :, None]
+    out = motion.copy()
+    out[:, c : c + frames] += offset[:, None, :] * ramp
+    return out

@@ -223,19 +223,3 @@ def test_bad_options_and_folders_are_one_line(stages: dict[str, Path], tmp_path:
     out = run_cli("drive", wav, "--generator", "probtalk", "-G", f"model={vq_only}", "--backend", "record",
                   "--out", str(tmp_path / "o"))  # fmt: skip
     assert out.returncode == 2 and "'vq' stage export" in out.stderr and len(out.stderr.splitlines()) == 1
-
-
-def test_ease_in_continues_the_context_and_fades_out() -> None:
-    from convodrive.generators.probtalk import ease_in
-
-    rng = np.random.default_rng(0)
-    context = np.cumsum(rng.standard_normal((2, 10, 5)), axis=1).astype(np.float32)
-    motion = rng.standard_normal((2, 40, 5)).astype(np.float32) + 5.0  # a window that jumps away
-    motion[:, :10] = context
-    out = ease_in(motion, context, 12)
-    np.testing.assert_allclose(out[:, 10], 2 * context[:, -1] - context[:, -2], atol=1e-5)  # the context's velocity
-    np.testing.assert_array_equal(out[:, :10], context)  # known frames kept
-    np.testing.assert_array_equal(out[:, 22:], motion[:, 22:])  # the model's own motion after the blend
-    offsets = (out - motion)[:, 10:22]
-    assert np.all(np.abs(offsets[:, 1:]) <= np.abs(offsets[:, :-1]) + 1e-6)  # fading
-    np.testing.assert_array_equal(ease_in(motion, context, 0), motion)

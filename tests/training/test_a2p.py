@@ -185,3 +185,18 @@ def test_body_memory_graph_reads_guide_poses_at_any_count(graphs: tuple[A2P, dic
             )
         np.testing.assert_allclose(out["guide_keys"], want.keys[1].numpy(), atol=1e-4)
         assert out["guide_bias"].shape == (1, 1, 1, count + 1)
+
+
+def test_the_velocity_loss_counts_the_step_from_the_known_frames_to_the_new_ones() -> None:
+    """A prediction that is right on the new frames but starts them away from the known prefix (a
+    seam) pays; one that is wrong only on the known frames, which the sampler replaces, does not."""
+    from convodrive.training.recipes.a2p import seam_velocity_error
+
+    target = torch.linspace(0, 1, 20)[None, :, None].repeat(1, 1, 3)
+    known = torch.zeros(1, 20, 1)
+    known[:, :8] = 1.0
+    mask = torch.ones(1, 1, 3)
+    wrong_where_pinned = target + 5 * known
+    assert float(seam_velocity_error(wrong_where_pinned, target, known, mask)) == 0.0
+    jumped = target + 0.5 * (1 - known)  # the new frames' shape is right, their start is not
+    assert float(seam_velocity_error(jumped, target, known, mask)) > 0.01

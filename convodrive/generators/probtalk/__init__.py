@@ -28,7 +28,7 @@ import numpy as np
 
 from convodrive.generators.learned import LearnedGenerator, LearnedOptions
 from convodrive.neural.maskgit import maskgit_sample
-from convodrive.neural.windows import WindowPlan
+from convodrive.neural.windows import WindowPlan, ease_in
 from convodrive.plugins.options import option
 from convodrive.plumbing.errors import InputFileError, UserError
 
@@ -165,22 +165,3 @@ class ProbTalkGenerator(LearnedGenerator):
             "refined": self.refine,
             "windows": self.windows,
         }
-
-
-def ease_in(motion: np.ndarray, context: np.ndarray, frames: int) -> np.ndarray:
-    """``motion`` (K, window, D) whose first new frames are offset so that they continue the known
-    ``context`` (K, C, D) at its own velocity, the offset fading linearly to nothing over ``frames``.
-
-    The codes of the token that holds the seam are sampled, not fitted to the known frames, so the
-    model's first new frame can sit several degrees away from the last known one; the refiner,
-    trained on reconstructions that agree with the known frames, does not close that gap.
-    """
-    c = context.shape[1]
-    if frames <= 0 or c < 2:
-        return motion
-    expected = 2 * context[:, -1] - context[:, -2]
-    offset = expected - motion[:, c]
-    ramp = (1 - np.arange(frames, dtype=np.float32) / frames)[None, :, None]
-    out = motion.copy()
-    out[:, c : c + frames] += offset[:, None, :] * ramp
-    return out

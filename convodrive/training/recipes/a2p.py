@@ -267,7 +267,7 @@ class A2PRecipe(Recipe):
             f"cosine schedule of {config.diffusion_steps} steps, x0 prediction; windows up to {config.window} frames, "
             f"continued from up to {config.context} known frames. Speakers: {speakers}.\n\n"
             "Use: `convodrive drive AUDIO --generator a2p -G model=THIS_FOLDER` (options: sampler, steps, "
-            f"face_steps, guidance_face, guidance_body, top_p, speaker, mode). The distilled face takes {face_steps} "
+            f"face_steps, guidance_face, guidance_body, top_p, speaker, mode, blend). The distilled face takes {face_steps} "
             "unless `face_steps` says otherwise."
         )
 
@@ -350,8 +350,18 @@ def denoiser_loss(
     noise = torch.randn(target.shape, generator=generator).to(device)
     x0 = net.step(noised_at(target, steps, noise, config), steps, target, known, memory)
     rec = masked_l2(x0, target, feature_mask * (1 - known))
-    vel = masked_l2(x0.diff(dim=1), target.diff(dim=1), feature_mask)
+    vel = seam_velocity_error(x0, target, known, feature_mask)
     return rec + velocity_weight * vel, {"x0": rec.detach(), "velocity": vel.detach()}
+
+
+def seam_velocity_error(
+    x0: torch.Tensor, target: torch.Tensor, known: torch.Tensor, feature_mask: torch.Tensor
+) -> torch.Tensor:
+    """Velocity error of the motion as sampled, the known frames pinned (the sampler replaces
+    them): the step from the last known frame to the first new one counts, which the prediction on
+    the known frames, never used, would hide."""
+    pinned = known * target + (1 - known) * x0
+    return masked_l2(pinned.diff(dim=1), target.diff(dim=1), feature_mask)
 
 
 def _window(batch: Batch, offset: int, size: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
