@@ -6,7 +6,8 @@ frames it must continue from, it returns the window's normalised motion features
 This base does the rest: it loads and verifies the model folder (``convodrive.neural``), computes
 the log-mel features in streaming blocks (``convodrive.audio.logmel``, chunk-invariant), cuts the
 stream into windows (``neural.windows.WindowPlan``), pads the last window with silence, seeds
-each window from (seed, window index), and decodes features to canonical frames
+each window from (seed, window index), eases each window's first new frames onto the motion it
+continues (``neural.windows.ease_in``, over ``blend`` frames), and decodes features to canonical frames
 (``motion.representation``). Everything depends only on the audio and the seed, never on how the
 audio was chunked, so ``stream == generate`` for a seed, and K takes share one feature pass.
 """
@@ -28,7 +29,7 @@ from convodrive.generators.base import Generator, take_seed
 from convodrive.motion import representation as rep
 from convodrive.motion.clip import MotionClip, MotionFrame
 from convodrive.neural import Graph, ModelFolder, SessionOptions, load_model_folder
-from convodrive.neural.windows import WindowPlan
+from convodrive.neural.windows import WindowPlan, ease_in
 from convodrive.plugins.options import PluginOptions, option
 from convodrive.plumbing.errors import InputFileError, UserError
 
@@ -40,6 +41,12 @@ class LearnedOptions(PluginOptions):
     model: str = option("", help="model folder (convodrive export); empty: the weights shipped with the generator")
     threads: int = option(1, low=1, high=64, help="ONNX Runtime intra-op threads per graph")
     device: str = option("auto", choices=("auto", "cpu", "cuda"), help="where graphs run (auto: CUDA when present)")
+    blend: int = option(
+        10,
+        low=0,
+        high=600,
+        help="frames over which a window eases from the motion it continues into its own (0: none, a jump may show at the seam)",
+    )
 
 
 class LearnedGenerator(Generator):
@@ -129,6 +136,8 @@ class LearnedGenerator(Generator):
             context = motion[:, start - m0 : start - m0 + plan.context] if index > 0 and plan.context else None
             rngs = [np.random.default_rng([int(s) & 0xFFFFFFFF, index]) for s in seeds]
             out = np.asarray(self.run_window(window_audio, context, rngs, **carried), np.float32)
+            if context is not None:
+                out = ease_in(out, context, min(self.options.blend, out.shape[1] - context.shape[1]))
             keep = plan.context if index > 0 else 0
             motion = np.concatenate([motion[:, : start + keep - m0], out[:, keep:]], axis=1)
 

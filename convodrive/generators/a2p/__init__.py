@@ -35,7 +35,7 @@ from convodrive.generators.learned import LearnedGenerator, LearnedOptions
 from convodrive.motion import representation as rep
 from convodrive.neural.autoregressive import KVCache, sample_tokens
 from convodrive.neural.diffusion import consistency_sample, cosine_schedule, ddim_sample, guided, noise_like
-from convodrive.neural.windows import WindowPlan, ease_in
+from convodrive.neural.windows import WindowPlan
 from convodrive.plugins.options import option
 from convodrive.plumbing.errors import InputFileError, UserError
 
@@ -86,12 +86,6 @@ class A2POptions(LearnedOptions):
         0.94, low=0.01, high=1.0, help="nucleus of the guide-pose codes (lower: safer poses, less varied)"
     )
     speaker: str = option("", help="speaker style the model learned (its model card lists them); empty: the first")
-    blend: int = option(
-        10,
-        low=0,
-        high=120,
-        help="frames over which a window eases from the motion it continues into its own (0: none, a jump may show at the seam)",
-    )
 
 
 @dataclasses.dataclass
@@ -223,8 +217,6 @@ class A2PGenerator(LearnedGenerator):
             self.options.guidance_body,
             self.steps,
         )
-        if context is not None:
-            out = ease_in(out, context, min(self.options.blend, window - context.shape[1]))
         state.index += 1
         self.windows += 1
         return out

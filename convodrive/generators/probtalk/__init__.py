@@ -28,7 +28,7 @@ import numpy as np
 
 from convodrive.generators.learned import LearnedGenerator, LearnedOptions
 from convodrive.neural.maskgit import maskgit_sample
-from convodrive.neural.windows import WindowPlan, ease_in
+from convodrive.neural.windows import WindowPlan
 from convodrive.plugins.options import option
 from convodrive.plumbing.errors import InputFileError, UserError
 
@@ -59,10 +59,7 @@ class ProbTalkOptions(LearnedOptions):
     dyadic: bool = option(True, help="hear the partner's channel (false: the model hears silence there)")
     refine: bool = option(True, help="run the refiner (false: the predictor's coarse motion, for ablations)")
     blend: int = option(
-        12,
-        low=0,
-        high=180,
-        help="frames over which a window eases from the motion it continues into its own (0: none, a jump may show at the seam)",
+        12, low=0, high=600, help="frames over which a window eases into its own motion (0: none); 12: a token and a half"
     )
 
     def __post_init__(self) -> None:
@@ -150,8 +147,6 @@ class ProbTalkGenerator(LearnedGenerator):
         motion = known_mask * known + (1 - known_mask) * coarse
         if self.refiner is not None:
             motion = self.refiner(motion=motion, audio=heard, known_mask=known_mask, speaker=speaker)["refined"]
-        if context is not None:
-            motion = ease_in(motion, context, min(self.options.blend, window - context.shape[1]))
         self.windows += 1
         return motion[:, :window]
 
