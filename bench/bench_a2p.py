@@ -3,8 +3,10 @@
 Prints JSON with
 - ``rtf``: real-time factor of ``generate`` (lip, face, guide poses, body: all of it) on
   ``--seconds`` of speech-like dialogue (20 s: the reference's longest input), for each preset
-  (``paper``, ``small``) and precision (fp32, int8), with DDIM at ``--ddim`` steps (classifier-free
-  guidance, both halves one batch) and the distilled sampler, ``--threads`` ONNX Runtime threads.
+  (``paper``, ``small``) and precision (fp32, int8): the generator's defaults (DDIM, 10 steps for
+  the body and 50 for the face, guidance on the face), the distilled sampler, and DDIM at
+  ``--ddim`` steps for both (classifier-free guidance on both, both halves one batch, as the
+  reference samples), ``--threads`` ONNX Runtime threads.
   Speed does not depend on the weights, so the graphs are exported from fresh networks
   (``--model DIR``, repeatable, times trained folders too; ``--presets ""`` times only those). The reference: 0.062x on these 2 cores at DDIM 100
   with guidance; targets: ``paper`` distilled >= 1x, ``small`` distilled >= 5x;
@@ -12,7 +14,7 @@ Prints JSON with
   torch: each token by re-running the whole prefix and re-encoding its audio (as the reference
   samples), and one cached step a token; and through the ONNX step graph with its cache;
 - ``live``: look-ahead, a window's compute (median and worst) and their sum, the latency (target
-  <= 0.5 s), with the distilled sampler;
+  <= 0.5 s), with the defaults of live mode (DDIM, 20 face steps) and the distilled sampler;
 - ``long`` (with ``--model``, the first one, ``--long-minutes`` of the bundled dialogue looped): the largest frame
   change (pose and face) at a window seam against the largest inside windows, and the peak of
   traced memory after the first minute against at the end (constant memory);
@@ -50,9 +52,9 @@ def rtf(folder: Path, audio: DyadicAudio, threads: int, **options: Any) -> float
     return round(audio.duration / (time.perf_counter() - started), 3)
 
 
-def live_latency(folder: Path, audio: DyadicAudio, threads: int) -> dict[str, float]:
+def live_latency(folder: Path, audio: DyadicAudio, threads: int, **options: Any) -> dict[str, float]:
     """Look-ahead plus a live window's compute, timed on every window of a stream."""
-    gen = A2PGenerator({"model": str(folder), "threads": threads, "device": "cpu", "mode": "live"})
+    gen = A2PGenerator({"model": str(folder), "threads": threads, "device": "cpu", "mode": "live", **options})
     spent: list[float] = []
     run_window = gen.run_window
 
@@ -191,10 +193,13 @@ def main() -> int:
             folders[f"trained {model}"] = model
         table: dict[str, dict[str, float]] = {}
         for label, folder in folders.items():
-            table[label] = {"distilled": rtf(folder, audio, args.threads)}
+            table[label] = {
+                "default": rtf(folder, audio, args.threads),
+                "distilled": rtf(folder, audio, args.threads, sampler="distilled"),
+            }
             for steps in ddim:  # guidance on face and body, as the reference samples (the body's default is none)
                 table[label][f"ddim{steps}"] = rtf(
-                    folder, audio, args.threads, sampler="ddim", steps=steps, guidance_body=2.0
+                    folder, audio, args.threads, sampler="ddim", steps=steps, face_steps=steps, guidance_body=2.0
                 )
             print(json.dumps({label: table[label]}), flush=True)
         out["rtf"] = table
@@ -206,7 +211,14 @@ def main() -> int:
             for preset in presets
             if f"{preset} fp32" in folders
         }
-        out["live"] = {label: live_latency(folder, speech_like(20.0, seed=1), 1) for label, folder in folders.items()}
+        live_audio = speech_like(20.0, seed=1)
+        out["live"] = {
+            label: {
+                "default": live_latency(folder, live_audio, 1),
+                "distilled": live_latency(folder, live_audio, 1, sampler="distilled"),
+            }
+            for label, folder in folders.items()
+        }
     if args.model and args.long_minutes > 0:
         out["long"] = long_run(args.model[0], args.long_minutes)
     out["load_after"] = [round(x, 2) for x in os.getloadavg()]

@@ -3,8 +3,9 @@
 One definition of the noise schedule serves training (torch reads these arrays) and the runtime,
 so a model is sampled on the schedule it learned. The loops:
 
-- ``ddim_sample``: deterministic DDIM (eta 0) with any number of steps, spaced "trailing" (the
-  first step starts at the last diffusion step, so even one step starts from pure noise).
+- ``ddim_sample``: DDIM with any number of steps, spaced "trailing" (the first step starts at the
+  last diffusion step, so even one step starts from pure noise); deterministic at ``eta`` 0,
+  adding fresh noise at each step as DDPM does at ``eta`` 1.
 - ``consistency_sample``: a distilled consistency model, which maps any noisy point straight to
   x0; with more than one step, x0 is noised again to the next (lower) step with fresh noise.
 - ``guided``: classifier-free guidance with the conditional and unconditional passes as one
@@ -39,6 +40,22 @@ def ddim_step(x: T, x0: T, alpha_bar: Any, alpha_bar_next: Any) -> T:
     step with ``alpha_bar_next``, given the predicted clean ``x0`` (NumPy or torch)."""
     eps = (x - alpha_bar**0.5 * x0) / (1 - alpha_bar) ** 0.5  # type: ignore[operator]
     return noised(x0, eps, alpha_bar_next)
+
+
+def ddim_noise_scale(alpha_bar: float, alpha_bar_next: float, eta: float) -> float:
+    """The standard deviation of the fresh noise a DDIM step with ``eta`` adds (Song et al. 2021,
+    eq. 16): 0 at eta 0, the DDPM posterior's at eta 1."""
+    return float(eta * ((1 - alpha_bar_next) / (1 - alpha_bar) * (1 - alpha_bar / alpha_bar_next)) ** 0.5)
+
+
+def stochastic_ddim_step(
+    x: np.ndarray, x0: np.ndarray, alpha_bar: float, alpha_bar_next: float, eta: float, fresh: np.ndarray
+) -> np.ndarray:
+    """A DDIM step that keeps part of the predicted noise and draws the rest afresh (``fresh``,
+    standard normal, the shape of ``x``): the variance stays that of the forward process."""
+    sigma = ddim_noise_scale(alpha_bar, alpha_bar_next, eta)
+    eps = (x - alpha_bar**0.5 * x0) / (1 - alpha_bar) ** 0.5
+    return alpha_bar_next**0.5 * x0 + (1 - alpha_bar_next - sigma**2) ** 0.5 * eps + sigma * fresh
 
 
 def cosine_schedule(steps: int = 1000, offset: float = 0.008, max_beta: float = 0.999) -> np.ndarray:
@@ -97,8 +114,13 @@ def ddim_sample(
     alpha_bar: np.ndarray,
     known: np.ndarray | None = None,
     known_mask: np.ndarray | None = None,
+    eta: float = 0.0,
+    rngs: Sequence[np.random.Generator] = (),
 ) -> np.ndarray:
-    """x0 (B, T, D) by deterministic DDIM from ``noise`` (B, T, D) in ``steps`` steps."""
+    """x0 (B, T, D) by DDIM from ``noise`` (B, T, D) in ``steps`` steps; with ``eta`` above 0,
+    each step draws fresh noise from ``rngs`` (one a row)."""
+    if eta > 0 and len(rngs) != len(noise):
+        raise ValueError(f"stochastic DDIM needs one generator a row, got {len(rngs)} for {len(noise)}")
     x = noise.astype(np.float32)
     times = ddim_timesteps(steps, len(alpha_bar))
     x0 = x
@@ -106,7 +128,11 @@ def ddim_sample(
         x0 = pin(x0_fn(x, np.full(len(x), t, np.int64)).astype(np.float32), known, known_mask)
         if i + 1 == len(times):
             break
-        x = ddim_step(x, x0, alpha_bar[t], alpha_bar[times[i + 1]]).astype(np.float32)
+        a, a_next = alpha_bar[t], alpha_bar[times[i + 1]]
+        if eta > 0:
+            x = stochastic_ddim_step(x, x0, a, a_next, eta, noise_like(rngs, x.shape[1:])).astype(np.float32)
+        else:
+            x = ddim_step(x, x0, a, a_next).astype(np.float32)
     return x0
 
 

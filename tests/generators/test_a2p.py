@@ -170,16 +170,36 @@ def test_guidance_and_sampler_options_change_the_motion(model: Path) -> None:
     guided = A2PGenerator({"model": str(model), "sampler": "ddim", "steps": 2, "guidance_body": 4.0}).generate(audio)[0]
     assert np.abs(base.pose - guided.pose).max() > 1e-5
     np.testing.assert_allclose(base.face, guided.face, atol=1e-6)  # the face's guidance is its own
-    distilled = A2PGenerator({"model": str(model), "steps": 1}).generate(audio)[0]
+    distilled = A2PGenerator({"model": str(model), "sampler": "distilled", "steps": 1}).generate(audio)[0]
     assert np.abs(base.pose - distilled.pose).max() > 1e-5
-    # The face may take its own number of steps; by default as many as the body.
-    default = A2PGenerator({"model": str(model), "steps": 2})
+    # The students' face may take its own number of steps; by default as many as the body.
+    default = A2PGenerator({"model": str(model), "sampler": "distilled", "steps": 2})
     assert default.report()["face_steps"] == 2 and default.report()["steps"] == 2
-    two = A2PGenerator({"model": str(model), "steps": 2, "face_steps": 2}).generate(audio)[0]
+    two = A2PGenerator({"model": str(model), "sampler": "distilled", "steps": 2, "face_steps": 2}).generate(audio)[0]
     np.testing.assert_array_equal(default.generate(audio)[0].face, two.face)
-    one_face = A2PGenerator({"model": str(model), "steps": 2, "face_steps": 1})
+    one_face = A2PGenerator({"model": str(model), "sampler": "distilled", "steps": 2, "face_steps": 1})
     assert np.abs(one_face.generate(audio)[0].face - two.face).max() > 1e-5
     assert one_face.report()["face_steps"] == 1
+
+
+def test_ddim_is_the_default_and_its_face_takes_more_steps_than_its_body(model: Path) -> None:
+    """The face improves with every DDIM step up to 50 where the body stops at 10 (see
+    ``DDIM_FACE_STEPS``); live mode keeps the face at 20 for its latency."""
+    file = A2PGenerator({"model": str(model)}).report()
+    assert (file["sampler"], file["steps"], file["face_steps"]) == ("ddim", 10, 50)
+    assert A2PGenerator({"model": str(model), "mode": "live"}).report()["face_steps"] == 20
+    assert A2PGenerator({"model": str(model), "mode": "live", "face_steps": 7}).report()["face_steps"] == 7
+
+
+def test_stochastic_ddim_is_another_draw_for_the_same_seed(model: Path) -> None:
+    audio = _audio(2.5)
+    options = {"model": str(model), "steps": 3, "face_steps": 3}
+    deterministic = A2PGenerator(options).generate(audio, seed=4)[0]
+    stochastic = A2PGenerator({**options, "eta": 1.0}).generate(audio, seed=4)[0]
+    assert np.abs(deterministic.pose - stochastic.pose).max() > 1e-5
+    assert np.abs(deterministic.face - stochastic.face).max() > 1e-5
+    again = A2PGenerator({**options, "eta": 1.0}).generate(audio, seed=4)[0]
+    np.testing.assert_array_equal(stochastic.pose, again.pose)  # the seed still decides
 
 
 def test_a_model_may_name_its_own_face_student_steps(model: Path, tmp_path: Path) -> None:
@@ -190,14 +210,17 @@ def test_a_model_may_name_its_own_face_student_steps(model: Path, tmp_path: Path
     meta = json.loads((own / "model.json").read_text())
     meta["architecture"]["face_student_steps"] = 1
     (own / "model.json").write_text(json.dumps(meta))
-    assert A2PGenerator({"model": str(own)}).report()["face_steps"] == 1
-    assert A2PGenerator({"model": str(own), "steps": 2}).report()["face_steps"] == 1
-    assert A2PGenerator({"model": str(own), "face_steps": 3}).report()["face_steps"] == 3
-    assert A2PGenerator({"model": str(own), "sampler": "ddim", "steps": 5}).report()["face_steps"] == 5
+    students = {"model": str(own), "sampler": "distilled"}
+    assert A2PGenerator(students).report()["face_steps"] == 1
+    assert A2PGenerator({**students, "steps": 2}).report()["face_steps"] == 1
+    assert A2PGenerator({**students, "face_steps": 3}).report()["face_steps"] == 3
+    assert A2PGenerator({"model": str(own), "steps": 5}).report()["face_steps"] == 50  # the teachers' own (DDIM)
     audio = _audio(2.5)
     np.testing.assert_array_equal(
-        A2PGenerator({"model": str(own), "steps": 2}).generate(audio)[0].face,
-        A2PGenerator({"model": str(model), "steps": 2, "face_steps": 1}).generate(audio)[0].face,
+        A2PGenerator({**students, "steps": 2}).generate(audio)[0].face,
+        A2PGenerator({"model": str(model), "sampler": "distilled", "steps": 2, "face_steps": 1})
+        .generate(audio)[0]
+        .face,
     )
 
 
@@ -207,10 +230,10 @@ def test_bad_options_and_folders_are_one_line(model: Path, tmp_path: Path) -> No
                   "--backend", "record", "--out", str(tmp_path / "o"))  # fmt: skip
     assert out.returncode == 2 and "not one the model learned (calm, lively)" in out.stderr, out.stderr
     assert len(out.stderr.splitlines()) == 1
-    with pytest.raises(UserError, match="steps must be at most 10"):
-        A2PGenerator({"model": str(model), "steps": 11})  # the tiny grid: 1000 steps / 100
+    with pytest.raises(UserError, match="steps must be at most 10 with the distilled sampler"):
+        A2PGenerator({"model": str(model), "sampler": "distilled", "steps": 11})  # the tiny grid: 1000 steps / 100
     with pytest.raises(UserError, match="face_steps must be at most 10"):
-        A2PGenerator({"model": str(model), "face_steps": 11})
+        A2PGenerator({"model": str(model), "sampler": "distilled", "face_steps": 11})
     with pytest.raises(UserError, match="mode"):
         A2PGenerator({"model": str(model), "mode": "batch"})
     meta = json.loads((model / "model.json").read_text())
@@ -224,8 +247,8 @@ def test_bad_options_and_folders_are_one_line(model: Path, tmp_path: Path) -> No
     meta["files"] = {k: v for k, v in meta["files"].items() if Path(k).stem not in students}
     (teacher_only / "model.json").write_text(json.dumps(meta))
     with pytest.raises(InputFileError, match="export the distill stage"):
-        A2PGenerator({"model": str(teacher_only)})
-    A2PGenerator({"model": str(teacher_only), "sampler": "ddim"})  # the teachers alone run DDIM
+        A2PGenerator({"model": str(teacher_only), "sampler": "distilled"})
+    A2PGenerator({"model": str(teacher_only)})  # the teachers alone run DDIM, the default
 
 
 PROBE = """

@@ -58,16 +58,28 @@ def test_both_samplers_run_the_shipped_graphs() -> None:
 def test_the_shipped_model_talks_with_self_and_rests_while_listening() -> None:
     """Issue 13's must-show on the bundled dialogue: the jaw follows self's voice and shuts in self's
     silences, the arms move at least twice as fast while self talks as while it only listens. The
-    head moves faster while talking too, though not yet twice as fast (the model card's figure)."""
+    head moves faster while talking too, though not yet twice as fast (the model card's figure).
+    Speeds are pooled over three takes: the guide poses are sampled, and one take in a few gestures
+    through a listening turn."""
     audio = AudioSource(REPO / "samples" / "dialogue.wav").read_all()
-    clip = A2PGenerator().generate(audio, seed=0)[0]
-    figures = behaviour_figures(clip, audio, load_segments(REPO / "samples" / "dialogue.json"))
-    lips, arms = figures["lip_sync"], figures["arms"]
-    assert lips["pearson_jaw_vs_self_envelope"] >= 0.6, lips
-    assert lips["jaw_closed_when_self_silent"] >= 0.9, lips
-    assert arms["mean_speed_self_speaking_deg_s"] >= 2 * arms["mean_speed_listening_deg_s"], arms
-    assert figures["head"]["speaking_to_listening_ratio"] >= 1.2, figures["head"]
-    assert figures["voice_activity"]["self_on_when_only_partner_speaks"] <= 0.1, figures["voice_activity"]
+    segments = load_segments(REPO / "samples" / "dialogue.json")
+    takes = [behaviour_figures(clip, audio, segments) for clip in A2PGenerator().generate(audio, seed=0, num_samples=3)]
+
+    def pooled(part: str, key: str) -> float:
+        return float(np.mean([figures[part][key] for figures in takes]))
+
+    for figures in takes:
+        lips = figures["lip_sync"]
+        assert lips["pearson_jaw_vs_self_envelope"] >= 0.6, lips
+        assert lips["jaw_closed_when_self_silent"] >= 0.9, lips
+        assert figures["voice_activity"]["self_on_when_only_partner_speaks"] <= 0.1, figures["voice_activity"]
+    arms = pooled("arms", "mean_speed_self_speaking_deg_s"), pooled("arms", "mean_speed_listening_deg_s")
+    assert arms[0] >= 2 * arms[1], arms
+    head = (
+        pooled("head", "mean_angular_speed_self_speaking_deg_s"),
+        pooled("head", "mean_angular_speed_listening_deg_s"),
+    )
+    assert head[0] >= 1.5 * head[1], head
 
 
 def test_the_shipped_model_is_continuous_at_window_seams() -> None:

@@ -1,5 +1,5 @@
 """Diffusion sampling in NumPy: the cosine schedule, step spacing, DDIM that recovers x0 when the
-network knows it, guidance as one batch, pinned known frames, takes independent of the batch."""
+network knows it, stochastic DDIM (eta) on the forward process's marginals, guidance as one batch, pinned known frames, takes independent of the batch."""
 
 from __future__ import annotations
 
@@ -9,12 +9,14 @@ import pytest
 from convodrive.neural.diffusion import (
     consistency_sample,
     cosine_schedule,
+    ddim_noise_scale,
     ddim_sample,
     ddim_step,
     ddim_timesteps,
     grid_timesteps,
     guided,
     noised,
+    stochastic_ddim_step,
 )
 
 ABAR = cosine_schedule(1000)
@@ -115,3 +117,37 @@ def test_a_take_is_the_same_alone_or_in_a_batch() -> None:
     both = consistency_sample(x0_fn, noise, 4, ABAR, 20, [np.random.default_rng([7, i]) for i in range(3)])
     alone = consistency_sample(x0_fn, noise[1:2], 4, ABAR, 20, [np.random.default_rng([7, 1])])
     np.testing.assert_allclose(both[1:2], alone, rtol=1e-6)
+
+
+def test_stochastic_ddim_keeps_the_forward_marginals_and_reaches_ddpm_at_eta_one() -> None:
+    a, a_next = ABAR[700], ABAR[500]
+    # eta 1: the DDPM posterior's variance, (1 - a_next) / (1 - a) * (1 - a / a_next)
+    assert ddim_noise_scale(a, a_next, 1.0) ** 2 == pytest.approx((1 - a_next) / (1 - a) * (1 - a / a_next))
+    assert ddim_noise_scale(a, a_next, 0.0) == 0.0
+    rng = np.random.default_rng(0)
+    eps, fresh = rng.standard_normal((2, 200_000))
+    x0 = np.zeros_like(eps)
+    x_t = noised(x0, eps, a)
+    np.testing.assert_allclose(stochastic_ddim_step(x_t, x0, a, a_next, 0.0, fresh), ddim_step(x_t, x0, a, a_next))
+    for eta in (0.5, 1.0):
+        x_next = stochastic_ddim_step(x_t, x0, a, a_next, eta, fresh)
+        assert x_next.var() == pytest.approx(1 - a_next, rel=0.02)  # still the marginal of step a_next
+        kept = (1 - a_next - ddim_noise_scale(a, a_next, eta) ** 2) ** 0.5 / (1 - a_next) ** 0.5
+        assert np.corrcoef(x_next, eps)[0, 1] == pytest.approx(kept, abs=0.01) and kept < 0.99
+
+
+def test_stochastic_ddim_draws_from_each_take_s_generator() -> None:
+    def x0_fn(x: np.ndarray, t: np.ndarray) -> np.ndarray:
+        return 0.5 * np.tanh(x)
+
+    noise = np.random.default_rng(6).standard_normal((3, 6, 2)).astype(np.float32)
+    rngs = lambda seed: [np.random.default_rng([seed, i]) for i in range(3)]  # noqa: E731
+    deterministic = ddim_sample(x0_fn, noise, 5, ABAR)
+    stochastic = ddim_sample(x0_fn, noise, 5, ABAR, eta=1.0, rngs=rngs(7))
+    assert not np.allclose(stochastic, deterministic)
+    np.testing.assert_array_equal(stochastic, ddim_sample(x0_fn, noise, 5, ABAR, eta=1.0, rngs=rngs(7)))
+    assert not np.allclose(stochastic, ddim_sample(x0_fn, noise, 5, ABAR, eta=1.0, rngs=rngs(8)))
+    alone = ddim_sample(x0_fn, noise[1:2], 5, ABAR, eta=1.0, rngs=[np.random.default_rng([7, 1])])
+    np.testing.assert_allclose(stochastic[1:2], alone, rtol=1e-6)
+    with pytest.raises(ValueError, match="one generator a row"):
+        ddim_sample(x0_fn, noise, 5, ABAR, eta=0.5)

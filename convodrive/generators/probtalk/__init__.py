@@ -59,7 +59,10 @@ class ProbTalkOptions(LearnedOptions):
     dyadic: bool = option(True, help="hear the partner's channel (false: the model hears silence there)")
     refine: bool = option(True, help="run the refiner (false: the predictor's coarse motion, for ablations)")
     blend: int = option(
-        12, low=0, high=600, help="frames over which a window eases into its own motion (0: none); 12: a token and a half"
+        12,
+        low=0,
+        high=600,
+        help="frames over which a window eases into its own motion (0: none); 12: a token and a half",
     )
 
     def __post_init__(self) -> None:

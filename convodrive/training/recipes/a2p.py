@@ -267,8 +267,9 @@ class A2PRecipe(Recipe):
             f"cosine schedule of {config.diffusion_steps} steps, x0 prediction; windows up to {config.window} frames, "
             f"continued from up to {config.context} known frames. Speakers: {speakers}.\n\n"
             "Use: `convodrive drive AUDIO --generator a2p -G model=THIS_FOLDER` (options: sampler, steps, "
-            f"face_steps, guidance_face, guidance_body, top_p, speaker, mode, blend). The distilled face takes {face_steps} "
-            "unless `face_steps` says otherwise."
+            "face_steps, eta, guidance_face, guidance_body, top_p, speaker, mode, blend). The teachers run by "
+            "default (DDIM); with `sampler=distilled` the students do, and the distilled face takes "
+            f"{face_steps} unless `face_steps` says otherwise."
         )
 
 
