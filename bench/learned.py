@@ -29,6 +29,7 @@ def untrained_folder(model: str, preset: str, int8: bool, root: Path) -> Path:
         arrays={
             "mean": np.zeros(dim, np.float32),
             "std": np.ones(dim, np.float32),
+            "count": np.zeros(dim, np.int64),  # no data seen, no channel known constant
             "audio_mean": np.full(bands, -8.0, np.float32),
             "audio_std": np.full(bands, 3.0, np.float32),
         },

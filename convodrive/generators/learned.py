@@ -80,7 +80,7 @@ class LearnedGenerator(Generator):
             )
         self.mel_spec = MelSpec.from_dict(features.get("corpus", {}).get("audio_features", {}))
         norm = self.folder.arrays("normalisation.npz")
-        self.stats = rep.FeatureStats(norm["mean"], norm["std"], np.ones(rep.FEATURE_DIM, np.int64))
+        self.stats = rep.FeatureStats.from_arrays(norm)
         self.session_options = SessionOptions(threads=self.options.threads, device=self.options.device)
         self.plan = self.window_plan()
         self._silence = log_mel(np.zeros((2 * self.mel_spec.window, 2), np.float32), 1, self.mel_spec)[0]

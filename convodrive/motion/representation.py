@@ -35,7 +35,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -207,7 +207,8 @@ class FeatureStats:
     """Per-dimension mean and standard deviation of the features, and the frames each came from.
 
     ``normalise`` maps features to roughly zero mean and unit spread; a dimension no data covered
-    (count 0) or a constant one keeps mean 0 / std 1 or its mean / std 1.
+    (count 0) or a constant one keeps mean 0 / std 1 or its mean / std 1. ``denormalise`` gives a
+    constant dimension its constant back, whatever a network said there (see ``constant``).
     """
 
     mean: np.ndarray
@@ -245,8 +246,37 @@ class FeatureStats:
     def normalise(self, features: np.ndarray) -> np.ndarray:
         return ((np.asarray(features, np.float32) - self.mean) / self.std).astype(np.float32)
 
+    @property
+    def constant(self) -> np.ndarray:
+        """(FEATURE_DIM,) bool: the dimensions the data covered but never moved (a finger's bend
+        about a second axis, an ARKit shape no take used), which ``fit`` scales by 1. A network
+        has nothing to learn there, and its error comes out at that unit scale: a twist of a few
+        degrees every frame, a brow that twitches. Every feature lies in [-1, 1], so a measured
+        spread is below 1 and a spread of exactly 1 marks the floor."""
+        return (self.count > 0) & (self.std == 1.0)
+
     def denormalise(self, normalised: np.ndarray) -> np.ndarray:
-        return (np.asarray(normalised, np.float32) * self.std + self.mean).astype(np.float32)
+        """Features from normalised ones, the constant dimensions at their constant."""
+        out = np.asarray(normalised, np.float32) * self.std + self.mean
+        constant = self.constant
+        out[..., constant] = self.mean[constant]
+        return out.astype(np.float32)
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> FeatureStats:
+        """From a model folder's ``normalisation.npz``: ``mean``, ``std`` and ``count`` (folders
+        exported before counts were written lack it). Without counts, a rotation whose six dimensions are all
+        mean 0 / std 1 is taken as one the data lacked (a seen rotation has a unit first row), and
+        everything else as seen."""
+        mean, std = np.asarray(arrays["mean"], np.float32), np.asarray(arrays["std"], np.float32)
+        if "count" in arrays:
+            count = np.asarray(arrays["count"], np.int64)
+        else:
+            unseen = (mean == 0) & (std == 1)
+            blocks = unseen[_ROTATION_COLUMNS].reshape(-1, SIXD).all(axis=1)
+            count = np.ones(FEATURE_DIM, np.int64)
+            count[_ROTATION_COLUMNS] = np.repeat(~blocks, SIXD)
+        return cls(mean, std, count)
 
     def to_json(self) -> dict[str, Any]:
         return {

@@ -43,6 +43,7 @@ def _spec(speakers: list[str]):  # type: ignore[no-untyped-def]
         arrays={
             "mean": np.zeros(rep.FEATURE_DIM, np.float32),
             "std": np.ones(rep.FEATURE_DIM, np.float32),
+            "count": np.zeros(rep.FEATURE_DIM, np.int64),  # untrained: no data seen, no channel known constant
             "audio_mean": np.full(mel.bands, -8.0, np.float32),
             "audio_std": np.full(mel.bands, 3.0, np.float32),
         },

@@ -157,6 +157,46 @@ def test_stats_of_constant_and_unseen_columns_keep_unit_spread() -> None:
     assert np.all(np.isfinite(stats.normalise(features)))
 
 
+def test_a_channel_the_data_never_moved_decodes_to_its_constant() -> None:
+    """A network's error on a constant channel comes out at unit scale (its std is floored to 1):
+    in the corpus the fingers bend about one axis only, and noise on the others twisted them
+    sideways. Denormalising pins constant channels; moving ones and unseen ones pass through."""
+    rng = np.random.default_rng(8)
+    clip = MotionClip.neutral(60)
+    clip.pose[:, JOINT_INDEX["left_index1"], 2] = rng.uniform(0.0, 1.2, 60)  # bends about z only
+    no_hands_face = rep.feature_mask(face=np.zeros(52, bool))
+    stats = rep.FeatureStats.fit([(rep.encode_clip(clip), rep.feature_mask())])
+    names = rep.feature_names()
+    index = {n: i for i, n in enumerate(names)}
+    assert not stats.constant[index["hands.left_index1.0"]]  # cos of the bend: moves
+    assert stats.constant[index["hands.left_index1.2"]] and stats.constant[index["hands.left_index1.5"]]
+    noisy = rng.normal(0.0, 0.3, (60, rep.FEATURE_DIM)).astype(np.float32)  # a network's error
+    out = stats.denormalise(noisy)
+    constant = stats.constant
+    np.testing.assert_array_equal(out[:, constant], np.broadcast_to(stats.mean[constant], (60, constant.sum())))
+    np.testing.assert_allclose(out[:, ~constant], noisy[:, ~constant] * stats.std[~constant] + stats.mean[~constant])
+    finger = rep.decode(out).pose[:, JOINT_INDEX["left_index1"]]
+    sideways = np.abs(finger[:, :2]).max()
+    assert sideways < 1e-6, sideways  # no twist about the axes the data never used
+    # Columns no data covered are left alone: pinning a whole rotation to its mean 0 would not decode.
+    unseen = rep.FeatureStats.fit([(rep.encode_clip(clip), no_hands_face)])
+    assert not unseen.constant[rep.PARTS["arkit"]].any()
+
+
+def test_stats_from_a_model_folder_s_arrays_with_or_without_counts() -> None:
+    features = rep.encode_clip(MotionClip.neutral(20))  # every rotation the identity: seen, constant
+    mask = rep.feature_mask(joints=np.array([j not in ("left_elbow",) for j in rep.JOINT_NAMES]))
+    stats = rep.FeatureStats.fit([(features, mask)])
+    saved = {"mean": stats.mean, "std": stats.std, "count": stats.count}
+    np.testing.assert_array_equal(rep.FeatureStats.from_arrays(saved).count, stats.count)
+    inferred = rep.FeatureStats.from_arrays({"mean": stats.mean, "std": stats.std})  # an older export
+    elbow = [i for i, n in enumerate(rep.feature_names()) if n.startswith("upper.left_elbow.")]
+    assert np.all(inferred.count[elbow] == 0) and not inferred.constant[elbow].any()
+    others = np.setdiff1d(np.arange(rep.FEATURE_DIM), elbow)
+    assert np.all(inferred.count[others] > 0)
+    np.testing.assert_array_equal(inferred.constant[others], stats.constant[others])
+
+
 def test_bad_statistics_files_are_one_line_errors(tmp_path: Path) -> None:
     bad = tmp_path / "stats.json"
     bad.write_text("{not json")

@@ -180,7 +180,13 @@ class A2PRecipe(Recipe):
         audio_mean, audio_std = audio_stats(opened, "train")
         spec = DataSpec(
             info={"layout": rep.layout(), "corpus": corpus_facts(opened), "speakers": list(opened.speakers)},
-            arrays={"mean": stats.mean, "std": stats.std, "audio_mean": audio_mean, "audio_std": audio_std},
+            arrays={
+                "mean": stats.mean,
+                "std": stats.std,
+                "count": stats.count,
+                "audio_mean": audio_mean,
+                "audio_std": audio_std,
+            },
         )
         length, hop = example_length(config, stage)
         train = CorpusWindows(opened, "train", length, hop, stats)

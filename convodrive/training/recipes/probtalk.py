@@ -169,7 +169,13 @@ class ProbTalkRecipe(Recipe):
                 "window": config.window,
                 "frames_per_token": config.frames_per_token,
             },
-            arrays={"mean": stats.mean, "std": stats.std, "audio_mean": audio_mean, "audio_std": audio_std},
+            arrays={
+                "mean": stats.mean,
+                "std": stats.std,
+                "count": stats.count,
+                "audio_mean": audio_mean,
+                "audio_std": audio_std,
+            },
         )
         train = CorpusWindows(opened, "train", config.window, max(1, config.window // 8), stats)
         val = CorpusWindows(opened, "val", config.window, config.window, stats, takes=1)
