@@ -52,3 +52,16 @@ def audio_stats(corpus: Corpus, split: str = "train") -> tuple[np.ndarray, np.nd
     mean = sums / count
     std = np.sqrt(np.maximum(squares / count - mean**2, 0.0))
     return mean.astype(np.float32), np.maximum(std, 1e-3).astype(np.float32)
+
+
+def normalisation_arrays(stats: FeatureStats, corpus: Corpus) -> dict[str, np.ndarray]:
+    """What a model folder's ``normalisation.npz`` holds: the motion statistics (with their counts,
+    so the runtime knows which channels the data held constant) and the train split's audio ones."""
+    audio_mean, audio_std = audio_stats(corpus, "train")
+    return {
+        "mean": stats.mean,
+        "std": stats.std,
+        "count": stats.count,
+        "audio_mean": audio_mean,
+        "audio_std": audio_std,
+    }

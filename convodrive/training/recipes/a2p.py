@@ -54,7 +54,7 @@ from convodrive.motion import representation as rep
 from convodrive.neural.diffusion import cosine_schedule, ddim_step, noised
 from convodrive.plumbing.errors import UserError
 from convodrive.training.config import Preset
-from convodrive.training.corpus_data import audio_stats, corpus_facts, open_corpus, train_stats
+from convodrive.training.corpus_data import corpus_facts, normalisation_arrays, open_corpus, train_stats
 from convodrive.training.recipe import Batch, DataSpec, GraphSpec, Recipe, StartingPoint, StepContext, TrainingData
 from convodrive.training.windows import CorpusWindows
 
@@ -177,16 +177,9 @@ class A2PRecipe(Recipe):
             raise UserError(f"model 'a2p': {exc}") from None
         opened = open_corpus(corpus)
         stats = train_stats(opened)
-        audio_mean, audio_std = audio_stats(opened, "train")
         spec = DataSpec(
             info={"layout": rep.layout(), "corpus": corpus_facts(opened), "speakers": list(opened.speakers)},
-            arrays={
-                "mean": stats.mean,
-                "std": stats.std,
-                "count": stats.count,
-                "audio_mean": audio_mean,
-                "audio_std": audio_std,
-            },
+            arrays=normalisation_arrays(stats, opened),
         )
         length, hop = example_length(config, stage)
         train = CorpusWindows(opened, "train", length, hop, stats)

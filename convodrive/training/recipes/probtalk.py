@@ -34,7 +34,7 @@ from convodrive.motion import representation as rep
 from convodrive.motion.channels import ARKIT_NAMES
 from convodrive.plumbing.errors import UserError
 from convodrive.training.config import Preset
-from convodrive.training.corpus_data import audio_stats, corpus_facts, open_corpus, train_stats
+from convodrive.training.corpus_data import corpus_facts, normalisation_arrays, open_corpus, train_stats
 from convodrive.training.recipe import (
     Batch,
     DataSpec,
@@ -160,7 +160,6 @@ class ProbTalkRecipe(Recipe):
             raise UserError(f"model 'probtalk': {exc}") from None
         opened = open_corpus(corpus)
         stats = train_stats(opened)
-        audio_mean, audio_std = audio_stats(opened, "train")
         spec = DataSpec(
             info={
                 "layout": rep.layout(),
@@ -169,13 +168,7 @@ class ProbTalkRecipe(Recipe):
                 "window": config.window,
                 "frames_per_token": config.frames_per_token,
             },
-            arrays={
-                "mean": stats.mean,
-                "std": stats.std,
-                "count": stats.count,
-                "audio_mean": audio_mean,
-                "audio_std": audio_std,
-            },
+            arrays=normalisation_arrays(stats, opened),
         )
         train = CorpusWindows(opened, "train", config.window, max(1, config.window // 8), stats)
         val = CorpusWindows(opened, "val", config.window, config.window, stats, takes=1)
