@@ -4,7 +4,7 @@ Prints JSON with
 - ``rtf``: real-time factor of ``generate`` (lip, face, guide poses, body: all of it) on
   ``--seconds`` of speech-like dialogue (20 s: the reference's longest input), for each preset
   (``paper``, ``small``) and precision (fp32, int8): the generator's defaults (DDIM, 10 steps for
-  the body and 50 for the face, guidance on the face), the distilled sampler, and DDIM at
+  the body and 50 for the face, guidance on the face and on the body's audio), the distilled sampler, and DDIM at
   ``--ddim`` steps for both (classifier-free guidance on both, both halves one batch, as the
   reference samples), ``--threads`` ONNX Runtime threads.
   Speed does not depend on the weights, so the graphs are exported from fresh networks
@@ -197,9 +197,16 @@ def main() -> int:
                 "default": rtf(folder, audio, args.threads),
                 "distilled": rtf(folder, audio, args.threads, sampler="distilled"),
             }
-            for steps in ddim:  # guidance on face and body, as the reference samples (the body's default is none)
+            for steps in ddim:  # guidance on face and body, every condition dropped, as the reference samples
                 table[label][f"ddim{steps}"] = rtf(
-                    folder, audio, args.threads, sampler="ddim", steps=steps, face_steps=steps, guidance_body=2.0
+                    folder,
+                    audio,
+                    args.threads,
+                    sampler="ddim",
+                    steps=steps,
+                    face_steps=steps,
+                    guidance_body=2.0,
+                    guidance_body_on="all",
                 )
             print(json.dumps({label: table[label]}), flush=True)
         out["rtf"] = table

@@ -171,6 +171,15 @@ def test_guidance_and_sampler_options_change_the_motion(model: Path) -> None:
     guided = A2PGenerator({"model": str(model), "sampler": "ddim", "steps": 2, "guidance_body": 4.0}).generate(audio)[0]
     assert np.abs(base.pose - guided.pose).max() > 1e-5
     np.testing.assert_allclose(base.face, guided.face, atol=1e-6)  # the face's guidance is its own
+    # Guidance on the audio alone (the default) or on the guide poses too: two different passes.
+    every = {"model": str(model), "sampler": "ddim", "steps": 2, "guidance_body_on": "all"}
+    on_all = A2PGenerator(every).generate(audio)[0]
+    assert np.abs(base.pose - on_all.pose).max() > 1e-5
+    unguided = A2PGenerator({**every, "guidance_body": 1.0}).generate(audio)[0]
+    np.testing.assert_array_equal(
+        unguided.pose,
+        A2PGenerator({**every, "guidance_body": 1.0, "guidance_body_on": "audio"}).generate(audio)[0].pose,
+    )  # at scale 1 there is no unconditional pass to differ
     distilled = A2PGenerator({"model": str(model), "sampler": "distilled", "steps": 1}).generate(audio)[0]
     assert np.abs(base.pose - distilled.pose).max() > 1e-5
     # The students' face may take its own number of steps; by default as many as the body.
@@ -188,6 +197,9 @@ def test_ddim_is_the_default_and_its_face_takes_more_steps_than_its_body(model: 
     ``DDIM_FACE_STEPS``); live mode keeps the face at 20 for its latency."""
     file = A2PGenerator({"model": str(model)}).report()
     assert (file["sampler"], file["steps"], file["face_steps"]) == ("ddim", 10, 50)
+    assert file["guidance"] == {"face": 2.0, "body": 3.0} and file["body_guidance_on"] == "audio"
+    students = A2PGenerator({"model": str(model), "sampler": "distilled"}).report()
+    assert students["guidance"]["body"] == 1.0 and students["body_guidance_on"] == "all"
     assert A2PGenerator({"model": str(model), "mode": "live"}).report()["face_steps"] == 20
     assert A2PGenerator({"model": str(model), "mode": "live", "face_steps": 7}).report()["face_steps"] == 7
 

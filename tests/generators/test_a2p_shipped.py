@@ -57,9 +57,9 @@ def test_both_samplers_run_the_shipped_graphs() -> None:
 
 def test_the_shipped_model_talks_with_self_and_rests_while_listening() -> None:
     """Issue 13's must-show on the bundled dialogue: the jaw follows self's voice and shuts in self's
-    silences, the arms move at least twice as fast while self talks as while it only listens. The
-    head moves faster while talking too, though not yet twice as fast (the model card's figure).
-    Speeds are pooled over three takes: the guide poses are sampled, and one take in a few gestures
+    silences, the head and the arms move at least twice as fast while self talks as while it only
+    listens (the head does with the body's guidance on the audio, 2.3 times; 1.7 unguided). Speeds
+    are pooled over three takes: the guide poses are sampled, and one take in a few gestures
     through a listening turn."""
     audio = AudioSource(REPO / "samples" / "dialogue.wav").read_all()
     segments = load_segments(REPO / "samples" / "dialogue.json")
@@ -79,7 +79,7 @@ def test_the_shipped_model_talks_with_self_and_rests_while_listening() -> None:
         pooled("head", "mean_angular_speed_self_speaking_deg_s"),
         pooled("head", "mean_angular_speed_listening_deg_s"),
     )
-    assert head[0] >= 1.5 * head[1], head
+    assert head[0] >= 2 * head[1], head
 
 
 def test_the_shipped_model_is_continuous_at_window_seams() -> None:
