@@ -35,11 +35,16 @@ def noised(x0: T, noise: T, alpha_bar: Any) -> T:
     return alpha_bar**0.5 * x0 + (1 - alpha_bar) ** 0.5 * noise  # type: ignore[operator]
 
 
+def predicted_noise(x: T, x0: T, alpha_bar: Any) -> T:
+    """The noise that takes ``x0`` to ``x`` at a step with signal fraction ``alpha_bar`` (the
+    forward process solved for it; NumPy or torch)."""
+    return (x - alpha_bar**0.5 * x0) / (1 - alpha_bar) ** 0.5  # type: ignore[operator, no-any-return]
+
+
 def ddim_step(x: T, x0: T, alpha_bar: Any, alpha_bar_next: Any) -> T:
     """Deterministic DDIM (eta 0) from ``x`` at a step with signal fraction ``alpha_bar`` to the
     step with ``alpha_bar_next``, given the predicted clean ``x0`` (NumPy or torch)."""
-    eps = (x - alpha_bar**0.5 * x0) / (1 - alpha_bar) ** 0.5  # type: ignore[operator]
-    return noised(x0, eps, alpha_bar_next)
+    return noised(x0, predicted_noise(x, x0, alpha_bar), alpha_bar_next)
 
 
 def ddim_noise_scale(alpha_bar: float, alpha_bar_next: float, eta: float) -> float:
@@ -54,7 +59,7 @@ def stochastic_ddim_step(
     """A DDIM step that keeps part of the predicted noise and draws the rest afresh (``fresh``,
     standard normal, the shape of ``x``): the variance stays that of the forward process."""
     sigma = ddim_noise_scale(alpha_bar, alpha_bar_next, eta)
-    eps = (x - alpha_bar**0.5 * x0) / (1 - alpha_bar) ** 0.5
+    eps = predicted_noise(x, x0, alpha_bar)
     return alpha_bar_next**0.5 * x0 + (1 - alpha_bar_next - sigma**2) ** 0.5 * eps + sigma * fresh
 
 
