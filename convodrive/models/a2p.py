@@ -98,6 +98,12 @@ class A2PConfig:
     vq_width: int = 64
     vq_decay: float = 0.99
     vq_commit: float = 0.02
+    vq_residual: bool = False
+    """Each causal conv of the VQ-VAE adds its output to its input (the reference's stack does not).
+    Without it the small preset's VQ-VAE learned a latent that held the hands but not the arms and
+    head: its encoder's continuous output reconstructed the test split's 1 fps poses no better than
+    its codes (FD_g body 21; 32 principal components of the poses give 1.5), so the guide poses
+    kept a third of the real variance of the head and upper body. With it: FD_g body 6.0 (1500 steps)."""
     # guide transformer
     guide_width: int = 64
     guide_layers: int = 6
@@ -485,8 +491,9 @@ class CausalConvs(nn.Module):
 
     DILATIONS = (1, 2, 3, 1)
 
-    def __init__(self, cin: int, width: int, cout: int) -> None:
+    def __init__(self, cin: int, width: int, cout: int, residual: bool = False) -> None:
         super().__init__()
+        self.residual = residual
         self.input = nn.Conv1d(cin, width, 1)
         self.convs = nn.ModuleList(nn.Conv1d(width, width, 2, dilation=d) for d in self.DILATIONS)
         self.output = nn.Conv1d(width, cout, 1)
@@ -499,7 +506,8 @@ class CausalConvs(nn.Module):
         """(B, K, cin) -> (B, K, cout); output k depends on inputs k-7..k only."""
         h = self.input(x.transpose(1, 2))
         for conv, d in zip(self.convs, self.DILATIONS):
-            h = conv(F.pad(F.leaky_relu(h, 0.2), (d, 0)))
+            step = conv(F.pad(F.leaky_relu(h, 0.2), (d, 0)))
+            h = h + step if self.residual else step
         return self.output(F.leaky_relu(h, 0.2)).transpose(1, 2)
 
 
@@ -559,8 +567,8 @@ class GuideVQ(nn.Module):
 
     def __init__(self, dim: int, config: A2PConfig) -> None:
         super().__init__()
-        self.encoder = CausalConvs(dim, config.vq_width, config.vq_width)
-        self.decoder = CausalConvs(config.vq_width, config.vq_width, dim)
+        self.encoder = CausalConvs(dim, config.vq_width, config.vq_width, config.vq_residual)
+        self.decoder = CausalConvs(config.vq_width, config.vq_width, dim, config.vq_residual)
         self.levels = nn.ModuleList(
             Codebook(config.vq_codes, config.vq_width, config.vq_decay) for _ in range(config.vq_levels)
         )

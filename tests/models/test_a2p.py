@@ -1,7 +1,8 @@
 """audio2photoreal's networks: shapes at several lengths, the guide's KV-cache steps equal to a
 full banded re-run (past the cache's reach too), the memory made once equal to the conditions it
 came from, dropped conditions being really dropped, a causal VQ decoder, codebooks that learn
-and reset dead codes, frozen earlier stages, and losses that fall on a tiny batch."""
+and reset dead codes, a residual VQ stack that learns what the plain one cannot, frozen
+earlier stages, and losses that fall on a tiny batch."""
 
 from __future__ import annotations
 
@@ -161,9 +162,10 @@ def test_dropped_conditions_are_not_heard(model: A2P) -> None:
     assert mem.biases[1][0, 0, 0].tolist() == [0.0, -1e9, -1e9]
 
 
-def test_vq_decoder_is_causal_over_eight_seconds(model: A2P) -> None:
-    vq = model.vq
-    assert vq is not None
+@pytest.mark.parametrize("residual", [False, True])
+def test_vq_decoder_is_causal_over_eight_seconds(residual: bool) -> None:
+    torch.manual_seed(0)
+    vq = GuideVQ(BODY_DIM, dataclasses.replace(TINY, vq_residual=residual)).eval()
     codes = torch.randint(TINY.vq_codes, (1, 20, TINY.vq_levels))
     changed = codes.clone()
     changed[:, 10] = (changed[:, 10] + 1) % TINY.vq_codes
@@ -202,6 +204,31 @@ def test_vq_loss_falls_on_a_tiny_batch() -> None:
         loss.backward()
         optimizer.step()
     assert float(loss.detach()) < 0.5 * first
+
+
+def test_residual_convs_let_the_vq_autoencoder_learn_every_direction_of_the_poses() -> None:
+    """Poses that mix 8 random factors into every channel: in the same steps the plain conv stack
+    (the reference's) leaves about 40 % of their variance unexplained by its encoder's continuous
+    latent, the residual one about 12 % (the small preset's VQ-VAE kept the hands and lost the arms
+    and head without it)."""
+
+    def unexplained(residual: bool) -> float:
+        torch.manual_seed(0)
+        vq = GuideVQ(BODY_DIM, dataclasses.replace(TINY, vq_residual=residual)).train()
+        data = torch.Generator().manual_seed(100)
+        poses = torch.randn(16, 12, 8, generator=data) @ torch.randn(8, BODY_DIM, generator=data) / 8**0.5
+        optimizer = torch.optim.Adam(vq.parameters(), lr=3e-3)
+        for _ in range(200):
+            loss, _ = vq.loss(poses, torch.ones(1, 1, BODY_DIM), None)
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+        with torch.no_grad():
+            decoded = vq.eval().decoder(vq.encoder(poses))
+        return float((decoded - poses).square().mean() / poses.var())
+
+    plain, residual = unexplained(False), unexplained(True)
+    assert residual < 0.5 * plain, (plain, residual)
 
 
 def test_stages_hold_their_networks_and_freeze_earlier_ones() -> None:

@@ -80,6 +80,7 @@ _SMALL: dict[str, Any] = {
     "lip_feedforward": 192,
     "vq_codes": 256,
     "vq_width": 64,
+    "vq_residual": True,
     "guide_width": 96,
     "guide_layers": 3,
     "guide_heads": 4,
@@ -102,7 +103,15 @@ the script gives distillation, a finer grid of 50 points left the students far f
 and 6.6), the consistency targets drifting, where 8 points reached 27.7 and 9.4 in 300 steps.
 Its face student samples in one step by default (``face_student_steps``): at 4 it left the jaw open
 in more silences (shut on 83 % of self-silent test frames, its teacher 98 %), at 1 it shuts on
-97.5 % for a few points of FD_g face (9.4 against 8.8)."""
+97.5 % for a few points of FD_g face (9.4 against 8.8).
+
+Its VQ-VAE's causal convs are residual (``vq_residual``). Without, trained with the script's 3000
+steps, it reconstructed the test split's 1 fps poses at FD_g body 21.3 (head 3.7, upper body 14.4,
+hands 0.1), its encoder's continuous latent no better than its codes, where 32 principal components
+of the poses reach 1.5; with them, 4.9 (head 0.3, upper body 3.7, hands 0.15). The guide poses the
+transformer then samples (test split, top_p 0.94) keep 0.63 of the real variance of the head and
+0.73 of the upper body's (1.0 of the hands'), FD_g body 9.6; those of the weights shipped in
+convodrive/generators/a2p/model, made before this setting, 0.33 and 0.43 (0.93), FD_g body 24.3."""
 _TINY: dict[str, Any] = {
     "face_width": 16,
     "face_layers": 1,
