@@ -129,6 +129,7 @@ _TINY: dict[str, Any] = {
     "lip_feedforward": 32,
     "vq_codes": 16,
     "vq_width": 8,
+    "vq_residual": True,
     "guide_width": 16,
     "guide_layers": 1,
     "guide_heads": 2,
