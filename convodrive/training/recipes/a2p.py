@@ -110,8 +110,9 @@ steps, it reconstructed the test split's 1 fps poses at FD_g body 21.3 (head 3.7
 hands 0.1), its encoder's continuous latent no better than its codes, where 32 principal components
 of the poses reach 1.5; with them, 4.9 (head 0.3, upper body 3.7, hands 0.15). The guide poses the
 transformer then samples (test split, top_p 0.94) keep 0.63 of the real variance of the head and
-0.73 of the upper body's (1.0 of the hands'), FD_g body 9.6; those of the weights shipped in
-convodrive/generators/a2p/model, made before this setting, 0.33 and 0.43 (0.93), FD_g body 24.3."""
+0.73 of the upper body's (1.0 of the hands'), FD_g body 9.6; those of the weights shipped before
+this setting, 0.33 and 0.43 (0.93), FD_g body 24.3. The shipped weights have it (their card
+compares them with the previous ones)."""
 _TINY: dict[str, Any] = {
     "face_width": 16,
     "face_layers": 1,
