@@ -12,7 +12,14 @@ import torch
 import torch.nn.functional as F
 
 from convodrive.models.common import masked_l2
-from convodrive.models.probtalk import ProbTalk, ProbTalkConfig, ProductQuantizer, maskgit_sample, sinusoid
+from convodrive.models.probtalk import (
+    OverlapAdd,
+    ProbTalk,
+    ProbTalkConfig,
+    ProductQuantizer,
+    maskgit_sample,
+    sinusoid,
+)
 from convodrive.motion import representation as rep
 from convodrive.neural.maskgit import draw_uniforms, remask_count
 from convodrive.neural.maskgit import maskgit_sample as numpy_maskgit_sample
@@ -450,3 +457,30 @@ def test_off_the_sphere_the_codes_keep_the_latents_length(sphere: bool) -> None:
     else:
         assert not torch.equal(codes[0, 0], codes[0, 1])
         assert torch.allclose(long.norm(), 3 * short.norm(), rtol=1e-4)
+
+
+def test_overlap_add_decodes_independent_tokens_without_steps_at_their_borders() -> None:
+    """Tokens drawn independently (as MaskGIT samples codes) decode to motion whose frame-to-frame
+    change is as large at a token border as inside a token; a plain transposed conv of the same
+    size steps at every border. And the windows sum to one: a kernel constant over its frames
+    decodes a constant latent to a constant."""
+    torch.manual_seed(0)
+    hop, latent = 8, torch.randn(4, 16, 40)  # 40 independent tokens
+    overlap = OverlapAdd(16, 6, hop)
+    with torch.no_grad():  # smooth kernels, as training makes them, that do not end at zero
+        shape = 1 + 0.5 * torch.sin(torch.arange(2 * hop) / 3 + torch.randn(16, 6, 1))
+        overlap.conv.weight.copy_(torch.randn(16, 6, 1) * shape)
+    plain = torch.nn.ConvTranspose1d(16, 6, 2 * hop, hop, hop // 2)
+    plain.load_state_dict(overlap.conv.state_dict())
+
+    def border_over_inside(net: torch.nn.Module) -> float:
+        with torch.no_grad():
+            speed = net(latent).diff(dim=-1).abs().mean(dim=(0, 1))[hop:-hop]  # away from the ends
+        by_phase = torch.stack([speed[p::hop].mean() for p in range(hop)])
+        return float(by_phase.max() / by_phase.median())
+
+    assert border_over_inside(overlap) < 2 < 4 < border_over_inside(plain)  # 1.4 and 7.5
+    with torch.no_grad():
+        overlap.conv.weight.copy_(torch.randn(16, 6, 1).expand(16, 6, 2 * hop))
+        steady = overlap(torch.randn(1, 16, 1).expand(1, 16, 10))[..., hop:-hop]
+    assert torch.allclose(steady, steady[..., :1].expand_as(steady), atol=1e-4)

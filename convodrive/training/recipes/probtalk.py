@@ -82,10 +82,13 @@ the parts alike and 128-256 channels they score 0.97 and 0.20, the face 10.1 in 
 
 Its PQ-VAE has a linear path beside the conv stacks (``vq_skip``) and quantises each slice as it is
 (``vq_sphere`` off). Without them the stacks underfit and the sphere dropped each slice's length:
-the reconstruction kept about half the motion's variance (at 8000 steps the weights sampled test
-motion at FD_g body 23.9, four times knn's). With them the script's vq stage reaches validation
-FD_g (face / body) 4.2 / 10.7 at step 1000 and 2.1 / 6.5 at step 5000, against 13.2 / 65.1 at
-step 1000 before.
+the reconstruction kept about half the motion's variance, and the weights shipped before these
+settings sample test motion at FD_g body 23.3 (knn 6.0). A first version of the path (a token per 8
+frames, unwindowed) reached validation FD_g (face / body) 4.2 / 10.7 at step 1000 of the script's
+vq stage and 1.9 / 5.5 at step 7000, against 13.2 / 65.1 at step 1000 before; trained through
+(7 conversations x 4) it scored FD_g body 8.9, face 3.7 and FGD holistic 28.8, but FD_k body 0.27
+against 0.09: its motion stepped at every token border. ``OverlapAdd`` removes the steps; 1000 steps
+of the vq stage alone (outside the script) reconstruct the test split at FD_g body 9.3 with it.
 
 ``eyelid_part`` stays off: it brought the blinks back into the PQ-VAE (at 4000 steps the
 reconstruction's lids reach 5.4 at the 99th percentile, normalised, against the real 5.6 and 0.7
