@@ -29,7 +29,7 @@ from convodrive.generators.base import Generator, take_seed
 from convodrive.motion import representation as rep
 from convodrive.motion.clip import MotionClip, MotionFrame
 from convodrive.neural import Graph, ModelFolder, SessionOptions, load_model_folder
-from convodrive.neural.windows import WindowPlan, ease_in
+from convodrive.neural.windows import WindowPlan, ease_in, smooth_new_frames
 from convodrive.plugins.options import PluginOptions, option
 from convodrive.plumbing.errors import InputFileError, UserError
 
@@ -46,6 +46,12 @@ class LearnedOptions(PluginOptions):
         low=0,
         high=600,
         help="frames over which a window eases from the motion it continues into its own (0: none, a jump may show at the seam)",
+    )
+    smooth: float = option(
+        0.0,
+        low=0.0,
+        high=10.0,
+        help="Gaussian low-pass of the body in each window's new frames, sigma in frames (0: none; the face keeps its quick blinks and lips); adds no look-ahead",
     )
 
 
@@ -139,6 +145,9 @@ class LearnedGenerator(Generator):
             if context is not None:
                 out = ease_in(out, context, min(self.options.blend, out.shape[1] - context.shape[1]))
             keep = plan.context if index > 0 else 0
+            if context is not None:
+                out[:, :keep] = context  # the filter's past is the motion already out
+            out = smooth_new_frames(out, keep, self.options.smooth, rep.GROUPS["body"])
             motion = np.concatenate([motion[:, : start + keep - m0], out[:, keep:]], axis=1)
 
         def frames(stop: int) -> Iterator[tuple[MotionFrame, ...]]:

@@ -63,3 +63,30 @@ def ease_in(motion: np.ndarray, context: np.ndarray, frames: int) -> np.ndarray:
     out = motion.copy()
     out[:, c : c + frames] += offset[:, None, :] * ramp
     return out
+
+
+def smooth_new_frames(motion: np.ndarray, keep: int, sigma: float, channels: slice = slice(None)) -> np.ndarray:
+    """``motion`` (K, window, D) with its ``channels`` low-passed along time by a Gaussian of
+    ``sigma`` frames, its first ``keep`` frames (the known context, already out) unchanged and read
+    as the filter's past.
+
+    ProbTalk's PQ-VAE decodes each token through stride-2 transposed convolutions and overlapping
+    per-token kernels; its reconstruction of the corpus moves the body with six times the corpus's
+    frame-to-frame acceleration, a shiver a servo head would follow. The filter sees only the
+    window, so it adds no look-ahead: the window's last frames are filtered against copies of the
+    last one."""
+    if sigma <= 0 or motion.shape[1] < 2:
+        return motion
+    part = motion[..., channels]
+    radius = max(1, int(np.ceil(3 * sigma)))
+    taps = np.exp(-0.5 * (np.arange(-radius, radius + 1) / sigma) ** 2)
+    taps = (taps / taps.sum()).astype(np.float32)
+    padded = np.concatenate(
+        [np.repeat(part[:, :1], radius, axis=1), part, np.repeat(part[:, -1:], radius, axis=1)], axis=1
+    )
+    low = np.zeros_like(part)
+    for i, w in enumerate(taps):
+        low += w * padded[:, i : i + part.shape[1]]
+    out = motion.copy()
+    out[:, keep:, channels] = low[:, keep:]
+    return out
