@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The ProbTalk paper's ablation axes, measured on the corpus's test split (issue 12, item 6):
 # 1D against 2D positions and self-only against dyadic training (each a predictor and a refiner
-# trained like the shipped model's, from the same PQ-VAE stage), the refiner off, T = 1..16 MaskGIT
-# passes, and `live` against `file` mode; knn and random as the floor.
+# trained like the shipped model's, from the same PQ-VAE stage), the refiner on (the generator
+# leaves it off), the body's low-pass off, T = 1..16 MaskGIT passes, and `live` against `file`
+# mode; knn and random as the floor.
 #
 #   scripts/train_probtalk.sh CORPUS RUNS && scripts/ablate_probtalk.sh [CORPUS] [RUNS]
 #
@@ -47,11 +48,12 @@ need fp32/model.json
 fgd=${FGD_MODEL:-convodrive/eval/fgd_model}
 model=$runs/fp32
 "$bin/convodrive" eval compare --corpus "$corpus" --split test --samples "$samples" --seed 0 --fgd-model "$fgd" \
-    --generators probtalk,T1=probtalk,T2=probtalk,T4=probtalk,T16=probtalk,no-refiner=probtalk,live=probtalk,1d-positions=probtalk,self-trained=probtalk,knn,random \
+    --generators probtalk,T1=probtalk,T2=probtalk,T4=probtalk,T16=probtalk,refiner=probtalk,unsmoothed=probtalk,live=probtalk,1d-positions=probtalk,self-trained=probtalk,knn,random \
     -G "probtalk.model=$model" \
     -G "T1.model=$model" -G T1.iterations=1 -G "T2.model=$model" -G T2.iterations=2 \
     -G "T4.model=$model" -G T4.iterations=4 -G "T16.model=$model" -G T16.iterations=16 \
-    -G "no-refiner.model=$model" -G no-refiner.refine=false -G "live.model=$model" -G live.mode=live \
+    -G "refiner.model=$model" -G refiner.refine=true \
+    -G "unsmoothed.model=$model" -G unsmoothed.smooth=0 -G "live.model=$model" -G live.mode=live \
     -G "1d-positions.model=$runs/ablation-1d/fp32" -G "self-trained.model=$runs/ablation-self-trained/fp32" \
     --out "$runs/ablation"
 echo "ablate_probtalk: $runs/ablation/compare.md"

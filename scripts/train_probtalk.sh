@@ -9,17 +9,19 @@
 #
 # The corpus is made unless CORPUS_DIR already holds one; FGD uses the embedder shipped in
 # convodrive/eval/fgd_model/ (made by scripts/train_fgd.sh when missing) or FGD_MODEL=DIR. Sized
-# for at most 2 hours on 2 CPU cores shared with other work (training takes 0.2 to 0.4 CPU-seconds
-# a step); torch uses CUDA when it sees a GPU (--device auto). THREADS (default 1) sets torch's
-# CPU threads: on a busy machine one thread is fastest (two threads that wait for each other in
-# every operation ran ten times slower here). A second run resumes each stage where it stopped.
+# for at most 2 hours on 2 idle CPU cores: with two torch threads a step takes 0.42 s (vq),
+# 0.20 s (predictor) and 0.27 s (refiner), about 90 minutes of training; with one thread 0.59,
+# 0.30 and 0.38 s, 132 minutes. torch uses CUDA when it sees a GPU (--device auto). THREADS
+# (default: the machine's cores) sets torch's CPU threads: on a busy machine one thread is fastest
+# (two threads that wait for each other in every operation ran ten times slower here). A second
+# run resumes each stage where it stopped.
 # SHIP_ONLY=1 trains nothing (RUN_DIR's stages are done): it exports, compares and ships;
 # TRAIN_ONLY=1 stops after training (train on a GPU machine, ship where the corpus's audio is).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 corpus=${1:-corpus2h}
 runs=${2:-runs/probtalk-small}
-threads=${THREADS:-1}
+threads=${THREADS:-$(nproc)}
 bin=.venv/bin
 model=convodrive/generators/probtalk/model
 started=$(date +%s)

@@ -134,8 +134,8 @@ def test_stream_equals_generate_and_takes_batch(stages: dict[str, Path]) -> None
 
 
 def test_each_window_continues_from_its_context(stages: dict[str, Path]) -> None:
-    # blend 0: the stream is exactly what the windows return (the base's easing is tested apart)
-    gen = ProbTalkGenerator({"model": str(stages["model"]), "window": 40, "context": 16, "blend": 0})
+    # blend 0, smooth 0: the stream is exactly what the windows return (easing and smoothing are tested apart)
+    gen = ProbTalkGenerator({"model": str(stages["model"]), "window": 40, "context": 16, "blend": 0, "smooth": 0})
     contexts: list[np.ndarray | None] = []
     outputs: list[np.ndarray] = []
     run = gen.run_window
@@ -155,6 +155,16 @@ def test_each_window_continues_from_its_context(stages: dict[str, Path]) -> None
         np.testing.assert_array_equal(contexts[i], outputs[i - 1][:, 24:40])  # the previous window's last 16
     last = rep.decode(gen.stats.denormalise(outputs[6][0, 16 : 159 - 128]))  # window 6 starts at frame 128
     np.testing.assert_allclose(clip.pose[144:159], last.pose, atol=1e-5)  # the stream is the windows' output
+
+
+def test_smoothing_calms_the_body_and_leaves_the_first_window_s_face(stages: dict[str, Path]) -> None:
+    audio = _audio(5.3)
+    options = {"model": str(stages["model"]), "window": 40, "context": 16}
+    raw = ProbTalkGenerator({**options, "smooth": 0}).generate(audio, seed=3)[0]
+    smooth = ProbTalkGenerator({**options, "smooth": 2}).generate(audio, seed=3)[0]
+    np.testing.assert_allclose(smooth.face[:24], raw.face[:24], atol=1e-6)  # window 0's new frames: face untouched
+    acceleration = lambda clip: np.abs(np.diff(clip.pose, 2, axis=0)).mean()  # noqa: E731
+    assert acceleration(smooth) < 0.7 * acceleration(raw), (acceleration(smooth), acceleration(raw))
 
 
 def test_live_mode_declares_its_lookahead_and_keeps_it(stages: dict[str, Path]) -> None:
@@ -183,9 +193,9 @@ def test_dyadic_and_refine_options(stages: dict[str, Path]) -> None:
     deaf = ProbTalkGenerator({"model": model, "dyadic": False})
     assert np.abs(heard.generate(audio)[0].pose - heard.generate(other)[0].pose).max() > 1e-4
     np.testing.assert_array_equal(deaf.generate(audio)[0].pose, deaf.generate(other)[0].pose)
-    coarse = ProbTalkGenerator({"model": model, "refine": False})
-    assert coarse.refiner is None and heard.refiner is not None
-    assert np.abs(coarse.generate(audio)[0].pose - heard.generate(audio)[0].pose).max() > 1e-5
+    refined = ProbTalkGenerator({"model": model, "refine": True})
+    assert heard.refiner is None and refined.refiner is not None  # off unless asked (the card says why)
+    assert np.abs(refined.generate(audio)[0].pose - heard.generate(audio)[0].pose).max() > 1e-5
 
 
 def test_memory_stays_constant_on_long_audio(stages: dict[str, Path]) -> None:

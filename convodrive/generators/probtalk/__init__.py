@@ -7,7 +7,10 @@ Each window of audio becomes motion in four graph calls and a NumPy loop:
 2. ``predictor_step`` (once per MaskGIT pass, T passes): token ids + that memory -> logits; the
    sampling loop between passes is ``convodrive.neural.maskgit`` (NumPy);
 3. ``vq_decoder``: codes -> coarse motion; the known frames are copied in;
-4. ``refiner``: coarse motion + audio + known mask -> the window's motion.
+4. ``refiner`` (only with ``refine``): coarse motion + audio + known mask -> the window's motion.
+   The shipped refiner, trained with L1, made the face worse on the test split (its model card),
+   so the default is the decoder's motion, the body low-passed (``smooth``, the base class's)
+   since the PQ-VAE's decoder shivers.
 
 K takes (``--samples K``) are the batch of the same calls. Windows overlap by ``context`` frames:
 a window continues from the previous window's last frames, which it is given as known motion
@@ -57,7 +60,17 @@ class ProbTalkOptions(LearnedOptions):
     )
     speaker: str = option("", help="speaker style the model learned (its model card lists them); empty: the first")
     dyadic: bool = option(True, help="hear the partner's channel (false: the model hears silence there)")
-    refine: bool = option(True, help="run the refiner (false: the predictor's coarse motion, for ablations)")
+    refine: bool = option(
+        False,
+        help="run the refiner (the shipped one made the face worse on the test split: see its model card)",
+    )
+    smooth: float = option(
+        1.0,
+        low=0.0,
+        high=10.0,
+        help="Gaussian low-pass of the body in each window's new frames, sigma in frames (0: none); "
+        "the PQ-VAE's decoder shivers",
+    )
     blend: int = option(
         12,
         low=0,
@@ -80,7 +93,7 @@ class ProbTalkOptions(LearnedOptions):
 
 class ProbTalkGenerator(LearnedGenerator):
     name = "probtalk"
-    description = "ProbTalk: PQ-VAE codes predicted by MaskGIT from both voices, refined (learned, ONNX Runtime)"
+    description = "ProbTalk: PQ-VAE codes predicted by MaskGIT from both voices (learned, ONNX Runtime)"
     Options: ClassVar[type[LearnedOptions]] = ProbTalkOptions
     model_kind = "probtalk"
     shipped_model: ClassVar[Path | None] = Path(__file__).with_name("model")
