@@ -88,7 +88,7 @@ vq stage and 1.9 / 5.5 at step 7000, against 13.2 / 65.1 at step 1000 before; tr
 (7 conversations x 4) it scored FD_g body 8.9, face 3.7 and FGD holistic 28.8, but FD_k body 0.27
 against 0.09: its motion stepped at every token border. ``OverlapAdd`` removes the steps; the
 shipped weights have it (test split, int8, 7 x 4, refiner on: FD_g body 10.3, face 3.32, FGD
-holistic 32.2, FD_k body 0.108; the weights before: 23.9, 9.58, 29.6, 0.09). Its reconstruction
+holistic 32.2, FD_k body 0.108; the weights before, as shipped: 23.3, 9.51, 31.6, 0.0895). Its reconstruction
 still shivers: on the test split it moves the body at 1.9 times the corpus's frame-to-frame speed
 and 5.8 times its acceleration, which the generator's ``smooth`` low-pass (default on) filters; an
 acceleration loss is the next thing to try here.
