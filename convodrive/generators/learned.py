@@ -142,11 +142,10 @@ class LearnedGenerator(Generator):
             context = motion[:, start - m0 : start - m0 + plan.context] if index > 0 and plan.context else None
             rngs = [np.random.default_rng([int(s) & 0xFFFFFFFF, index]) for s in seeds]
             out = np.asarray(self.run_window(window_audio, context, rngs, **carried), np.float32)
-            if context is not None:
-                out = ease_in(out, context, min(self.options.blend, out.shape[1] - context.shape[1]))
             keep = plan.context if index > 0 else 0
             if context is not None:
-                out[:, :keep] = context  # the filter's past is the motion already out
+                out = ease_in(out, context, min(self.options.blend, out.shape[1] - context.shape[1]))
+                out[:, :keep] = context  # the low-pass's past is the motion already out
             out = smooth_new_frames(out, keep, self.options.smooth, rep.GROUPS["body"])
             motion = np.concatenate([motion[:, : start + keep - m0], out[:, keep:]], axis=1)
 

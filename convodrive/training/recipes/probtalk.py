@@ -69,9 +69,9 @@ _SMALL = {
     "speaker_dim": 32,
     "dropout": 0.0,
 }
-"""The shipped model: sized so that scripts/train_probtalk.sh trains it on a shared 2-core machine
-in under 2 hours (0.2 to 0.6 CPU-seconds a step at batch 16, one thread; the shipped weights took
-135 min with the larger PQ-VAE below, the machine otherwise near idle: see the model card). Its PQ-VAE learns
+"""The shipped model: sized so that scripts/train_probtalk.sh trains it on 2 idle cores in about
+90 minutes with two torch threads (0.2 to 0.42 s a step at batch 16; one thread took 135 min for
+the shipped weights, with the larger PQ-VAE below: see the model card). Its PQ-VAE learns
 with squared error: at 2000 steps on the script's corpus (64-128 channels, every channel alike),
 the reconstruction's validation FD_g (face / body) is 25.7 / 34.8, against 45.7 / 91.9 with the
 paper's L1, which settles on each channel's median and so flattens the face's mostly-still
