@@ -158,6 +158,24 @@ def test_the_pq_vae_error_is_l1_or_its_square() -> None:
         dataclasses.replace(TINY, vq_loss="huber").check()
 
 
+def test_the_acceleration_term_adds_the_weighted_second_difference_error() -> None:
+    """``acceleration_weight``: the PQ-VAE's loss gains the weighted error of the second difference,
+    which penalises frame-to-frame shiver that the velocity term lets through; 0 leaves it out."""
+    x = _batch()
+    totals = {}
+    for weight in (0.0, 2.0):
+        torch.manual_seed(0)
+        config = dataclasses.replace(TINY, vq_loss="l2", acceleration_weight=weight)
+        model = ProbTalk(config, DIM, BANDS, SPEAKERS, stage="vq").eval()
+        with torch.no_grad():
+            totals[weight], figures = model.vq.loss(x["motion"], x["mask"], torch.Generator().manual_seed(0))
+            recon = model.vq(x["motion"] * x["mask"], torch.Generator().manual_seed(0))[0]
+        assert ("acceleration" in figures) == bool(weight)
+    expected = (recon.diff(n=2, dim=1) - x["motion"].diff(n=2, dim=1)).square().mean()
+    assert float(figures["acceleration"]) == pytest.approx(float(expected), rel=1e-5)
+    assert float(totals[2.0] - totals[0.0]) == pytest.approx(2 * float(expected), rel=1e-4)
+
+
 def test_eyelid_part_weighs_the_two_lids_as_much_as_a_whole_part() -> None:
     """``eyelid_part``: the two blink channels carry as much of the error as the head's 12 channels
     or the rest of ARKit's 50, so that a PQ-VAE cannot leave blinks out for free."""

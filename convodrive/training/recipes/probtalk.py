@@ -90,8 +90,11 @@ against 0.09: its motion stepped at every token border. ``OverlapAdd`` removes t
 shipped weights have it (test split, int8, 7 x 4, refiner on: FD_g body 10.3, face 3.32, FGD
 holistic 32.2, FD_k body 0.108; the weights before, as shipped: 23.3, 9.51, 31.6, 0.0895). Its reconstruction
 still shivers: on the test split it moves the body at 1.9 times the corpus's frame-to-frame speed
-and 5.8 times its acceleration, which the generator's ``smooth`` low-pass (default on) filters; an
-acceleration loss is the next thing to try here.
+and 5.8 times its acceleration, which the generator's ``smooth`` low-pass (default on) filters.
+The PQ-VAE's ``acceleration_weight`` (off here) barely moves it: 300 more steps of the shipped vq
+stage (lr 3e-4 decaying tenfold) with the term at 1 or 4 took the test split's body |acc| from 0.0168
+to 0.0153 or 0.0150 (corpus 0.0029, normalised), |vel| 0.0215 to 0.0212 or 0.0213 (0.0116), FD_g
+body 3.90 to 3.73 or 3.89. Whether the term from the first step does better is untried.
 
 ``eyelid_part`` stays off: it brought the blinks back into the PQ-VAE (at 4000 steps the
 reconstruction's lids reach 5.4 at the 99th percentile, normalised, against the real 5.6 and 0.7
