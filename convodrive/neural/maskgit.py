@@ -49,13 +49,18 @@ def maskgit_sample(
     codes: int,
     iterations: int,
     rngs: Sequence[np.random.Generator],
-    temperature: float = 1.0,
+    temperature: float | np.ndarray = 1.0,
     choice_temperature: float = CHOICE_TEMPERATURE,
 ) -> np.ndarray:
     """(takes, length) int64 codes. ``logits_fn`` maps (takes, length) token ids, ``codes`` where a
-    token is still masked, to (takes, length, codes) logits."""
-    if iterations < 1 or temperature <= 0:
-        raise ValueError(f"iterations must be >= 1 and temperature > 0, got {iterations}, {temperature}")
+    token is still masked, to (takes, length, codes) logits. ``temperature``: one for every take, or
+    one per take ((takes,))."""
+    temperature = np.asarray(temperature, np.float64)
+    if iterations < 1 or np.any(temperature <= 0) or temperature.shape not in ((), (len(rngs),)):
+        raise ValueError(
+            f"iterations must be >= 1 and temperature > 0 (one, or one per take), got {iterations}, {temperature}"
+        )
+    temperature = temperature.reshape(-1, 1, 1)
     uniforms = draw_uniforms(rngs, iterations, length)
     mask_id = codes
     tokens = np.full((len(rngs), length), mask_id, np.int64)

@@ -167,6 +167,24 @@ def test_smoothing_calms_the_body_and_leaves_the_first_window_s_face(stages: dic
     assert acceleration(smooth) < 0.7 * acceleration(raw), (acceleration(smooth), acceleration(raw))
 
 
+def test_a_hotter_face_draw_replaces_the_face_and_keeps_the_body(stages: dict[str, Path]) -> None:
+    """``face_temperature``: a second draw of the codes, at that temperature, gives the face; the
+    first draw (at ``temperature``) still gives the body, so one window's body is unchanged."""
+    audio = _audio(1.2)  # one 40-frame window
+    options = {"model": str(stages["model"]), "window": 40, "context": 16, "blend": 0, "smooth": 0}
+    one = ProbTalkGenerator({**options, "face_temperature": 0}).generate(audio, seed=4, num_samples=2)
+    same = ProbTalkGenerator({**options, "face_temperature": 1.0}).generate(audio, seed=4, num_samples=2)
+    hot = ProbTalkGenerator({**options, "face_temperature": 3.0}).generate(audio, seed=4, num_samples=2)
+    body, face = rep.GROUPS["body"], rep.GROUPS["face"]  # the pose holds the jaw and eyes: compare features
+    for a, b, c in zip(one, same, hot):
+        np.testing.assert_array_equal(a.face, b.face)  # equal to temperature: one draw
+        first, hotter = rep.encode_clip(a), rep.encode_clip(c)
+        np.testing.assert_allclose(hotter[:, body], first[:, body], atol=1e-4)
+        assert np.abs(hotter[:, face] - first[:, face]).max() > 1e-3
+    alone = ProbTalkGenerator({**options, "face_temperature": 3.0}).generate(audio, seed=4 + 7919)[0]
+    np.testing.assert_allclose(alone.face, hot[1].face, atol=1e-5)  # a take's face draw is its own
+
+
 def test_live_mode_declares_its_lookahead_and_keeps_it(stages: dict[str, Path]) -> None:
     gen = ProbTalkGenerator({"model": str(stages["model"]), "mode": "live"})
     assert gen.plan.window == 48 and gen.plan.context == 36

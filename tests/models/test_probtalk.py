@@ -412,6 +412,20 @@ def test_low_temperature_takes_the_most_likely_codes() -> None:
     assert len(varied) == 4
 
 
+def test_each_take_may_have_its_own_temperature() -> None:
+    codes, length = 16, 24
+    fn = _fake_logits(codes)
+    rngs = lambda: [np.random.default_rng([3, k]) for k in range(2)]  # noqa: E731
+    mixed = numpy_maskgit_sample(fn, length, codes, 4, rngs(), temperature=np.array([0.5, 2.0]))
+    for k, temperature in enumerate((0.5, 2.0)):
+        alone = numpy_maskgit_sample(fn, length, codes, 4, [rngs()[k]], temperature=temperature)
+        assert np.array_equal(mixed[k], alone[0])
+    with pytest.raises(ValueError, match="one per take"):
+        numpy_maskgit_sample(fn, length, codes, 4, rngs(), temperature=np.array([1.0, 1.0, 1.0]))
+    with pytest.raises(ValueError, match="temperature > 0"):
+        numpy_maskgit_sample(fn, length, codes, 4, rngs(), temperature=np.array([1.0, 0.0]))
+
+
 def test_codes_in_use_stay_put_and_a_replaced_code_is_not_replaced_again_at_once() -> None:
     """Latents from 6 clusters, 16 codes a book: 10 codes go unchosen, yet after the first steps
     no code is replaced again (a fixed threshold of one latent a step replaced them every step)."""

@@ -30,6 +30,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from convodrive.generators.learned import LearnedGenerator, LearnedOptions
+from convodrive.motion import representation as rep
 from convodrive.neural.maskgit import maskgit_sample
 from convodrive.neural.windows import WindowPlan
 from convodrive.plugins.options import option
@@ -57,6 +58,14 @@ class ProbTalkOptions(LearnedOptions):
     iterations: int = option(8, low=1, high=64, help="MaskGIT passes per window (the paper's T)")
     temperature: float = option(
         1.0, low=0.01, high=10.0, help="sampling temperature of the codes (lower: safer, less varied)"
+    )
+    face_temperature: float = option(
+        1.4,
+        low=0.0,
+        high=10.0,
+        help="temperature of a second draw of the codes whose face replaces the first draw's "
+        "(0 or equal to temperature: one draw); every code carries face and body, and the face wants a "
+        "hotter draw than the body (its blinks), see the model card",
     )
     speaker: str = option("", help="speaker style the model learned (its model card lists them); empty: the first")
     dyadic: bool = option(True, help="hear the partner's channel (false: the model hears silence there)")
@@ -146,20 +155,23 @@ class ProbTalkGenerator(LearnedGenerator):
             known_mask[:, : context.shape[1]] = 1.0
         speaker = np.full(takes, self.speaker, np.int64)
         memory = self.memory(audio=heard, known=known, known_mask=known_mask, speaker=speaker)
+        temperature = np.full(takes, self.options.temperature)
+        face_draw = self.options.face_temperature > 0 and self.options.face_temperature != self.options.temperature
+        if face_draw:  # the face's draws ride in the same batch, from generators spawned off each take's
+            memory = {name: np.concatenate([value, value], axis=1) for name, value in memory.items()}
+            rngs = [*rngs, *(np.random.default_rng(rng.bit_generator.seed_seq.spawn(1)[0]) for rng in rngs)]
+            temperature = np.concatenate([temperature, np.full(takes, self.options.face_temperature)])
 
         def logits(tokens: np.ndarray) -> np.ndarray:
             return self.step(tokens=tokens, **memory)["logits"]
 
         tokens = maskgit_sample(
-            logits,
-            frames // self.per_token * self.groups,
-            self.codes,
-            self.options.iterations,
-            rngs,
-            self.options.temperature,
+            logits, frames // self.per_token * self.groups, self.codes, self.options.iterations, rngs, temperature
         )
-        codes = tokens.reshape(takes, frames // self.per_token, self.groups)
-        coarse = self.decoder(codes=codes)["motion"]
+        coarse = self.decoder(codes=tokens.reshape(len(rngs), frames // self.per_token, self.groups))["motion"]
+        if face_draw:
+            coarse, hotter = coarse[:takes], coarse[takes:]
+            coarse[..., rep.GROUPS["face"]] = hotter[..., rep.GROUPS["face"]]
         motion = known_mask * known + (1 - known_mask) * coarse
         if self.refiner is not None:
             motion = self.refiner(motion=motion, audio=heard, known_mask=known_mask, speaker=speaker)["refined"]
