@@ -12,7 +12,10 @@ Each window of audio becomes motion in four graph calls and a NumPy loop:
    so the default is the decoder's motion, the body low-passed (``smooth``, the base class's)
    since the PQ-VAE's decoder shivers.
 
-K takes (``--samples K``) are the batch of the same calls. Windows overlap by ``context`` frames:
+K takes (``--samples K``) are the batch of the same calls. With ``face_temperature`` (default on)
+the memory and MaskGIT passes run for 2K rows: each take's body comes from its draw at
+``temperature``, its face from a second, hotter draw (every code carries face and body, and at the
+body's temperature the face seldom blinks). Windows overlap by ``context`` frames:
 a window continues from the previous window's last frames, which it is given as known motion
 and keeps unchanged, so a stream of any length is one continuous motion (the base class,
 ``convodrive.generators.learned``, cuts the stream and keeps memory constant). ``file`` mode
