@@ -115,17 +115,26 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
 
 
 def axis_angle_to_matrix(aa: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula."""
+    """Rodrigues' formula, expanded entry by entry: cos(t) I + sin(t)/t K + (1 - cos(t))/t^2 v v^T
+    for v = t * axis and K its cross-product matrix (a batched ``K @ K`` took twice as long; this
+    runs for every training window)."""
     aa = _as_float(aa)
-    angle = np.linalg.norm(aa, axis=-1)[..., None, None]
-    x, y, z = np.moveaxis(aa, -1, 0)
-    zero = np.zeros_like(x)
-    k = np.stack([zero, -z, y, z, zero, -x, -y, x, zero], axis=-1).reshape(aa.shape[:-1] + (3, 3))
+    theta2 = np.einsum("...i,...i->...", aa, aa)
+    angle = np.sqrt(theta2)
     small = angle < 1e-6
     safe = np.where(small, 1.0, angle)
-    a = np.where(small, 1.0 - angle**2 / 6.0, np.sin(angle) / safe)
-    b = np.where(small, 0.5 - angle**2 / 24.0, (1.0 - np.cos(angle)) / safe**2)
-    return np.eye(3) + a * k + b * (k @ k)
+    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(angle) / safe)
+    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(angle)) / (safe * safe))
+    x, y, z = np.moveaxis(aa, -1, 0)
+    c = 1.0 - b * theta2
+    bx, by, bz = b * x, b * y, b * z
+    ax, ay, az = a * x, a * y, a * z
+    entries = [
+        [c + bx * x, bx * y - az, bx * z + ay],
+        [bx * y + az, c + by * y, by * z - ax],
+        [bx * z - ay, by * z + ax, c + bz * z],
+    ]
+    return np.stack([np.stack(row, axis=-1) for row in entries], axis=-2)
 
 
 def matrix_to_axis_angle(m: np.ndarray) -> np.ndarray:
