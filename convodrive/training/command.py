@@ -46,6 +46,12 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
         "repeatable, for a stage that builds on several runs",
     )
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads per process (default 1)")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="processes that assemble the next batches ahead (default: none on the CPU, up to 6 on CUDA)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -77,6 +83,7 @@ def run_train(args: argparse.Namespace) -> int:
             seed=args.seed,
             device=args.device,
             threads=args.threads,
+            workers=args.workers,
             init=args.init,
             progress=not args.no_progress,
             settings=parse_settings(args.settings),

@@ -106,6 +106,26 @@ def test_a_resumed_run_continues_exactly(tiny_corpus: Path, tmp_path: Path) -> N
     assert any(line.startswith("10,") for line in (tmp_path / "resumed" / "metrics.csv").read_text().splitlines())
 
 
+def test_batches_assembled_by_worker_processes_train_the_same_weights(tiny_corpus: Path, tmp_path: Path) -> None:
+    # a2p's lip regressor has dropout, which draws on torch's global generator as the workers' seeds would
+    for workers in (0, 2):
+        train(
+            TrainRequest(
+                "a2p",
+                tiny_corpus,
+                preset="tiny",
+                stage="lip",
+                steps=4,
+                batch_size=8,
+                out=tmp_path / f"workers{workers}",
+                device="cpu",
+                progress=False,
+                workers=workers,
+            )
+        )
+    assert _max_diff(_weights(tmp_path / "workers0"), _weights(tmp_path / "workers2")) == 0.0
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -114,6 +134,7 @@ def test_a_resumed_run_continues_exactly(tiny_corpus: Path, tmp_path: Path) -> N
         (["train", "fgd", "--corpus", "C", "--preset", "tiny", "--set", "chanels=3"], "did you mean 'channels'"),
         (["train", "fgd", "--corpus", "NOPE", "--preset", "tiny"], "NOPE: no such corpus folder"),
         (["train", "fgd", "--corpus", "C", "--preset", "tiny", "--threads", "0"], "--threads must be at least 1"),
+        (["train", "fgd", "--corpus", "C", "--preset", "tiny", "--workers", "-1"], "--workers must be at least 0"),
     ],
 )
 def test_user_mistakes_are_one_line(args: list[str], message: str, tiny_corpus: Path, tmp_path: Path) -> None:
