@@ -57,7 +57,6 @@ def main() -> int:
     work = Path(tempfile.mkdtemp(prefix="bench_train_batches_"))
     rates, weights = {}, []
     for workers in (0, args.workers):
-        run = work / f"workers{workers}"
         result = train(
             TrainRequest(
                 "a2p",
@@ -65,7 +64,7 @@ def main() -> int:
                 preset=args.preset,
                 stage="lip",
                 steps=args.steps,
-                out=run,
+                out=work / f"workers{workers}",
                 device=args.device,
                 progress=False,
                 workers=workers,
@@ -73,8 +72,9 @@ def main() -> int:
             )
         )
         rates[str(workers)] = round(result.steps_per_second, 2)
-        weights.append(load_file(str(sorted((run / "checkpoints").iterdir())[-1] / "model.safetensors")))
-    out["steps_per_second"] = {"stage": "a2p lip", "device": str(args.device), "by_workers": rates}
+        assert result.checkpoint is not None  # a finished run has saved its last step
+        weights.append(load_file(str(result.checkpoint / "model.safetensors")))
+    out["steps_per_second"] = {"stage": "a2p lip", "device": args.device, "by_workers": rates}
     out["same_weights"] = all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
     out["load_after"] = [round(x, 2) for x in os.getloadavg()]
     print(json.dumps(out, indent=2))
