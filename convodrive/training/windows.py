@@ -7,12 +7,19 @@ index in memory.
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 import torch
 
+from convodrive import FPS
 from convodrive.corpus import Corpus
+from convodrive.motion import representation as rep
 from convodrive.motion.representation import FeatureStats
-from convodrive.training.recipe import Batch, Examples
+from convodrive.plumbing.errors import UserError
+from convodrive.training.corpus_data import corpus_facts, normalisation_arrays, open_corpus, train_stats
+from convodrive.training.recipe import Batch, DataSpec, Examples, TrainingData
 
 
 class CorpusWindows(Examples):
@@ -55,3 +62,31 @@ class CorpusWindows(Examples):
             "audio": torch.from_numpy(np.stack(audio).astype(np.float32)),
             "speaker": torch.tensor(speaker, dtype=torch.long),
         }
+
+
+def window_data(
+    corpus: Path,
+    window: int,
+    hop: int,
+    val_hop: int,
+    info: dict[str, Any],
+    *,
+    hears_audio: bool = True,
+    what: str = "",
+) -> TrainingData:
+    """A recipe's examples: the train split's windows every ``hop`` frames (every take), the val
+    split's every ``val_hop`` (first take), and the spec its model folder keeps: the feature layout,
+    the corpus's facts and speakers, ``info``, and the normalisation arrays (the audio's too when
+    the model ``hears_audio``). ``what`` names the stage in the error for a corpus too short."""
+    opened = open_corpus(corpus)
+    stats = train_stats(opened)
+    arrays = normalisation_arrays(stats, opened) if hears_audio else {"mean": stats.mean, "std": stats.std}
+    spec = DataSpec(
+        info={"layout": rep.layout(), "corpus": corpus_facts(opened), "speakers": list(opened.speakers), **info},
+        arrays=arrays,
+    )
+    train = CorpusWindows(opened, "train", window, hop, stats)
+    if len(train) == 0:
+        raise UserError(f"{corpus}: no conversation of the train split lasts {window / FPS:.2f} s{what}")
+    val = CorpusWindows(opened, "val", window, val_hop, stats, takes=1)
+    return TrainingData(train=train, val=val if len(val) else None, spec=spec)

@@ -135,6 +135,11 @@ def test_batches_assembled_by_worker_processes_train_the_same_weights(tiny_corpu
         (["train", "fgd", "--corpus", "NOPE", "--preset", "tiny"], "NOPE: no such corpus folder"),
         (["train", "fgd", "--corpus", "C", "--preset", "tiny", "--threads", "0"], "--threads must be at least 1"),
         (["train", "fgd", "--corpus", "C", "--preset", "tiny", "--workers", "-1"], "--workers must be at least 0"),
+        (["train", "probtalk", "--corpus", "C"], "no conversation of the train split lasts 6.13 s"),
+        (
+            ["train", "a2p", "--corpus", "C", "--stage", "lip"],
+            "no conversation of the train split lasts 5.00 s (lip stage)",
+        ),
     ],
 )
 def test_user_mistakes_are_one_line(args: list[str], message: str, tiny_corpus: Path, tmp_path: Path) -> None:

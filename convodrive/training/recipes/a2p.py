@@ -50,13 +50,11 @@ from convodrive.models.a2p import (
     Memory,
 )
 from convodrive.models.common import masked_l2
-from convodrive.motion import representation as rep
 from convodrive.neural.diffusion import cosine_schedule, ddim_step, noised
 from convodrive.plumbing.errors import UserError
 from convodrive.training.config import Preset
-from convodrive.training.corpus_data import corpus_facts, normalisation_arrays, open_corpus, train_stats
 from convodrive.training.recipe import Batch, DataSpec, GraphSpec, Recipe, StartingPoint, StepContext, TrainingData
-from convodrive.training.windows import CorpusWindows
+from convodrive.training.windows import window_data
 
 HISTORY = FPS * (CausalConvs.receptive_field() - 1)
 """Frames before a body window whose 1 fps poses the VQ decoder's receptive field reaches."""
@@ -186,18 +184,8 @@ class A2PRecipe(Recipe):
             config.check()
         except ValueError as exc:
             raise UserError(f"model 'a2p': {exc}") from None
-        opened = open_corpus(corpus)
-        stats = train_stats(opened)
-        spec = DataSpec(
-            info={"layout": rep.layout(), "corpus": corpus_facts(opened), "speakers": list(opened.speakers)},
-            arrays=normalisation_arrays(stats, opened),
-        )
         length, hop = example_length(config, stage)
-        train = CorpusWindows(opened, "train", length, hop, stats)
-        val = CorpusWindows(opened, "val", length, max(hop, length // 2), stats, takes=1)
-        if len(train) == 0:
-            raise UserError(f"{corpus}: no conversation of the train split lasts {length / FPS:g} s ({stage} stage)")
-        return TrainingData(train=train, val=val if len(val) else None, spec=spec)
+        return window_data(corpus, length, hop, max(hop, length // 2), {}, what=f" ({stage} stage)")
 
     def build_model(self, config: A2PConfig, spec: DataSpec, stage: str) -> torch.nn.Module:
         bands = int(spec.info["corpus"]["audio_features"]["bands"])

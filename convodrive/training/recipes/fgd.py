@@ -19,9 +19,8 @@ from convodrive.models.fgd import FGDConfig, FGDNetworks, PartEncoder
 from convodrive.motion import representation as rep
 from convodrive.plumbing.errors import UserError
 from convodrive.training.config import Preset
-from convodrive.training.corpus_data import corpus_facts, open_corpus, train_stats
 from convodrive.training.recipe import Batch, DataSpec, GraphSpec, Recipe, StepContext, TrainingData
-from convodrive.training.windows import CorpusWindows
+from convodrive.training.windows import window_data
 
 
 def fgd_parts() -> dict[str, list[int]]:
@@ -58,20 +57,8 @@ class FGDRecipe(Recipe):
     default_preset = "small"
 
     def load_data(self, corpus: Path, config: FGDConfig, stage: str) -> TrainingData:
-        opened = open_corpus(corpus)
-        stats = train_stats(opened)
-        spec = DataSpec(
-            info={
-                "layout": rep.layout(),
-                "parts": fgd_parts(),
-                "window": config.window,
-                "corpus": corpus_facts(opened),
-            },
-            arrays={"mean": stats.mean, "std": stats.std},
-        )
-        train = CorpusWindows(opened, "train", config.window, max(1, config.window // 6), stats)
-        val = CorpusWindows(opened, "val", config.window, config.window, stats, takes=1)
-        return TrainingData(train=train, val=val if len(val) else None, spec=spec)
+        info = {"parts": fgd_parts(), "window": config.window}
+        return window_data(corpus, config.window, max(1, config.window // 6), config.window, info, hears_audio=False)
 
     def build_model(self, config: FGDConfig, spec: DataSpec, stage: str) -> torch.nn.Module:
         if config.window < 8 or config.channels < 1 or config.latent < 1:

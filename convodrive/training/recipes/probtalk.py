@@ -34,7 +34,6 @@ from convodrive.motion import representation as rep
 from convodrive.motion.channels import ARKIT_NAMES
 from convodrive.plumbing.errors import UserError
 from convodrive.training.config import Preset
-from convodrive.training.corpus_data import corpus_facts, normalisation_arrays, open_corpus, train_stats
 from convodrive.training.recipe import (
     Batch,
     DataSpec,
@@ -46,7 +45,7 @@ from convodrive.training.recipe import (
     model_device,
     to_device,
 )
-from convodrive.training.windows import CorpusWindows
+from convodrive.training.windows import window_data
 
 _SMALL = {
     "vq_loss": "l2",
@@ -178,21 +177,8 @@ class ProbTalkRecipe(Recipe):
             config.check()
         except ValueError as exc:
             raise UserError(f"model 'probtalk': {exc}") from None
-        opened = open_corpus(corpus)
-        stats = train_stats(opened)
-        spec = DataSpec(
-            info={
-                "layout": rep.layout(),
-                "corpus": corpus_facts(opened),
-                "speakers": list(opened.speakers),
-                "window": config.window,
-                "frames_per_token": config.frames_per_token,
-            },
-            arrays=normalisation_arrays(stats, opened),
-        )
-        train = CorpusWindows(opened, "train", config.window, max(1, config.window // 8), stats)
-        val = CorpusWindows(opened, "val", config.window, config.window, stats, takes=1)
-        return TrainingData(train=train, val=val if len(val) else None, spec=spec)
+        info = {"window": config.window, "frames_per_token": config.frames_per_token}
+        return window_data(corpus, config.window, max(1, config.window // 8), config.window, info)
 
     def build_model(self, config: ProbTalkConfig, spec: DataSpec, stage: str) -> torch.nn.Module:
         bands = int(spec.info["corpus"]["audio_features"]["bands"])
