@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from convodrive.plumbing.errors import UserError
+from convodrive.plumbing.heap import keep_freed_blocks
 from convodrive.training import distributed
 from convodrive.training.checkpoint import list_checkpoints, load_checkpoint, prune_checkpoints, save_checkpoint
 from convodrive.training.config import TrainConfig, to_dict
@@ -177,6 +178,7 @@ def train(request: TrainRequest) -> TrainResult:
     if request.workers is not None and request.workers < 0:
         raise UserError(f"--workers must be at least 0, got {request.workers}")
     torch.set_num_threads(request.threads)
+    keep_freed_blocks()  # each step's activations reuse the last one's pages (plumbing/heap.py)
     procs = distributed.start(request.device)
     try:
         workers = request.workers if request.workers is not None else default_workers(procs)
