@@ -29,7 +29,7 @@ from convodrive.training import distributed
 from convodrive.training.checkpoint import list_checkpoints, load_checkpoint, prune_checkpoints, save_checkpoint
 from convodrive.training.config import TrainConfig, to_dict
 from convodrive.training.logbook import Logbook
-from convodrive.training.recipe import Batch, Recipe, StartingPoint, StepContext, TrainingData, to_device
+from convodrive.training.recipe import Batch, Examples, Recipe, StartingPoint, StepContext, TrainingData, to_device
 from convodrive.training.registry import get_preset, get_recipe
 
 
@@ -73,7 +73,7 @@ class StepBatches(torch.utils.data.Dataset):
     """The batch of each step, a pure function of the step (module doc), so that worker processes
     can assemble batches ahead and the run stays the same with any number of them."""
 
-    def __init__(self, windows: Any, config: TrainConfig, rank: int, local_batch: int) -> None:
+    def __init__(self, windows: Examples, config: TrainConfig, rank: int, local_batch: int) -> None:
         self.windows, self.config, self.rank, self.local_batch = windows, config, rank, local_batch
 
     def __len__(self) -> int:
@@ -85,7 +85,7 @@ class StepBatches(torch.utils.data.Dataset):
 
 
 def step_batches(
-    windows: Any, config: TrainConfig, rank: int, local_batch: int, steps: range, workers: int
+    windows: Examples, config: TrainConfig, rank: int, local_batch: int, steps: range, workers: int
 ) -> Iterable[Batch]:
     """This process's batches of ``steps``, in order, assembled by ``workers`` processes (0: here)."""
     dataset = StepBatches(windows, config, rank, local_batch)

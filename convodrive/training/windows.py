@@ -72,12 +72,12 @@ def window_data(
     info: dict[str, Any],
     *,
     hears_audio: bool = True,
-    what: str = "",
+    stage: str = "",
 ) -> TrainingData:
     """A recipe's examples: the train split's windows every ``hop`` frames (every take), the val
     split's every ``val_hop`` (first take), and the spec its model folder keeps: the feature layout,
     the corpus's facts and speakers, ``info``, and the normalisation arrays (the audio's too when
-    the model ``hears_audio``). ``what`` names the stage in the error for a corpus too short."""
+    the model ``hears_audio``). The error for a corpus too short names ``stage`` where one is given."""
     opened = open_corpus(corpus)
     stats = train_stats(opened)
     arrays = normalisation_arrays(stats, opened) if hears_audio else {"mean": stats.mean, "std": stats.std}
@@ -87,6 +87,7 @@ def window_data(
     )
     train = CorpusWindows(opened, "train", window, hop, stats)
     if len(train) == 0:
-        raise UserError(f"{corpus}: no conversation of the train split lasts {window / FPS:.2f} s{what}")
+        named = f" ({stage} stage)" if stage else ""
+        raise UserError(f"{corpus}: no conversation of the train split lasts {window / FPS:.2f} s{named}")
     val = CorpusWindows(opened, "val", window, val_hop, stats, takes=1)
     return TrainingData(train=train, val=val if len(val) else None, spec=spec)

@@ -185,7 +185,7 @@ class A2PRecipe(Recipe):
         except ValueError as exc:
             raise UserError(f"model 'a2p': {exc}") from None
         length, hop = example_length(config, stage)
-        return window_data(corpus, length, hop, max(hop, length // 2), {}, what=f" ({stage} stage)")
+        return window_data(corpus, length, hop, max(hop, length // 2), {}, stage=stage)
 
     def build_model(self, config: A2PConfig, spec: DataSpec, stage: str) -> torch.nn.Module:
         bands = int(spec.info["corpus"]["audio_features"]["bands"])
