@@ -43,10 +43,25 @@ class FfmpegInfo:
     """True when the container states the sample count (MP4/M4A); raw AAC only estimates it."""
 
 
+def _looks_like_aac(path: Path) -> bool:
+    """An MP4 container (``ftyp`` box) or an ADTS stream (sync word), by its first bytes or name."""
+    try:
+        with path.open("rb") as f:
+            head = f.read(12)
+    except OSError:
+        return False
+    adts = len(head) >= 2 and head[0] == 0xFF and head[1] & 0xF6 == 0xF0
+    return head[4:8] == b"ftyp" or adts or path.suffix.lower() in {".m4a", ".aac", ".mp4"}
+
+
 def probe(path: Path) -> FfmpegInfo | None:
     """The audio stream of an M4A or AAC file, or None when ffprobe finds no such file."""
     exe = shutil.which("ffprobe")
     if exe is None:
+        if _looks_like_aac(path):
+            raise InputFileError(
+                path, "reading M4A/AAC needs ffprobe and ffmpeg, which are not installed (apt install ffmpeg)"
+            )
         return None
     cmd = [exe, "-v", "error", "-select_streams", "a:0", "-show_entries", "format=format_name,duration"]
     cmd += ["-show_entries", "stream=codec_name,sample_rate,channels,duration_ts,time_base", "-of", "json", str(path)]

@@ -43,7 +43,7 @@ class StreamResampler:
         """Add input; return every output sample that is now final (same shape kind as ``block``)."""
         block = np.asarray(block, np.float32)
         flat = block.ndim == 1
-        rows = block.reshape(len(block), -1)
+        rows = block[:, None] if flat else block
         self._received += len(rows)
         if self.identity:
             self._emitted += len(rows)

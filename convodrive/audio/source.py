@@ -31,7 +31,8 @@ SUPPORTED_FORMATS = {"WAV", "WAVEX", "RF64", "W64", "FLAC", "OGG", "AIFF", "MP3"
 READABLE = "WAV, FLAC, OGG, MP3 and M4A/AAC"
 SUPPORTED_EXTENSIONS = {".wav", ".rf64", ".w64", ".flac", ".ogg", ".oga", ".aiff", ".aif", ".mp3", ".m4a", ".aac"}
 """File names that say "audio file" (where an argument may also name a device)."""
-_BLOCK_SECONDS = 2.0
+_BLOCK_SECONDS = 0.5
+"""Read granularity: a file that fails part-way loses at most this much before the failure."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -204,7 +205,8 @@ class AudioSource:
     def _resampled_blocks(self) -> Iterator[tuple[np.ndarray, np.ndarray, bool]]:
         """Read block by block through a streaming resampler (its output equals resampling the
         whole file at once). The end is where the reader runs dry, so a decoder that only
-        estimated the length still ends cleanly."""
+        estimated the length still ends cleanly. Each block is handed on before the next is read,
+        so a file that stops decoding part-way still yields what came before the failing block."""
         cols = [self.channel_map.self_channel] + (
             [self.channel_map.other_channel] if self.channel_map.other_channel is not None else []
         )
@@ -212,10 +214,9 @@ class AudioSource:
         block = max(1, int(_BLOCK_SECONDS * self.info.sample_rate))
         decoded = 0  # native samples handed out so far, for the position of a decoding error
         with self._open(cols) as reader, self._decoding(lambda: decoded):
-            data = reader.read(block)
             while True:
-                more = reader.read(block) if len(data) == block else data[:0]
-                last = len(more) == 0
+                data = reader.read(block)
+                last = len(data) < block
                 out = resampler.push(data)
                 if last:
                     out = np.concatenate([out, resampler.finish(flat=False)])
@@ -223,7 +224,6 @@ class AudioSource:
                 yield out[:, 0], (out[:, 1] if out.shape[1] > 1 else np.zeros(len(out), np.float32)), last
                 if last:
                     return
-                data = more
 
 
 class _Reader(Protocol):

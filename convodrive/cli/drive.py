@@ -8,6 +8,7 @@ import signal
 import sys
 from pathlib import Path
 
+from convodrive.audio.source import READABLE
 from convodrive.cli.options import add_motion_options, channel_map, int_in, plugin_options
 from convodrive.cli.progress import drain_progress, frame_progress
 from convodrive.pipeline import MAX_SAMPLES, DriveRequest, DriveResult, drive
@@ -23,7 +24,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Generate motion from AUDIO (channel 0 = self, 1 = partner; mono = silent partner) "
         "and send it at 30 fps to each backend.",
     )
-    p.add_argument("audio", type=Path, metavar="AUDIO", help="WAV, FLAC or OGG file, any sample rate")
+    p.add_argument("audio", type=Path, metavar="AUDIO", help=f"{READABLE} file, any sample rate")
     add_motion_options(p)
     p.add_argument(
         "--samples",

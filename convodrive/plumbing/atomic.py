@@ -2,12 +2,16 @@
 
 Writers produce a temporary file in the destination's folder and rename it over the destination
 only when they finish, so an error or Ctrl-C leaves the previous file (or nothing) in place.
+A temporary name carries its process id, so a write cut short by SIGKILL (which runs no cleanup)
+is swept away by the next write to the same destination (``sweep_dead``).
 """
 
 from __future__ import annotations
 
 import contextlib
+import glob
 import os
+import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -32,8 +36,10 @@ def atomic_path(destination: str | os.PathLike[str], suffix: str | None = None) 
     """
     dest = Path(destination)
     dest.parent.mkdir(parents=True, exist_ok=True)
+    prefix = f".{dest.name}.tmp-"
+    sweep_dead(dest.parent, prefix)
     fd, tmp_name = tempfile.mkstemp(
-        prefix=f".{dest.name}.", suffix=suffix if suffix is not None else dest.suffix, dir=dest.parent
+        prefix=f"{prefix}{os.getpid()}-", suffix=suffix if suffix is not None else dest.suffix, dir=dest.parent
     )
     os.close(fd)
     tmp = Path(tmp_name)
@@ -54,3 +60,26 @@ def write_text_atomic(destination: str | os.PathLike[str], text: str) -> None:
 def write_bytes_atomic(destination: str | os.PathLike[str], data: bytes) -> None:
     with atomic_path(destination) as tmp:
         tmp.write_bytes(data)
+
+
+def sweep_dead(parent: Path, prefix: str) -> None:
+    """Remove the files and folders ``parent/{prefix}{pid}-…`` whose process no longer runs."""
+    for stale in parent.glob(f"{glob.escape(prefix)}*"):
+        pid = stale.name[len(prefix) :].split("-", 1)[0]
+        if not pid.isdigit() or process_alive(int(pid)):
+            continue
+        if stale.is_dir() and not stale.is_symlink():
+            shutil.rmtree(stale, ignore_errors=True)
+        else:
+            with contextlib.suppress(OSError):
+                stale.unlink()
+
+
+def process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True

@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import contextlib
 import os
-import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 
 import numpy as np
+
+from convodrive.plumbing.atomic import sweep_dead
 
 BLOCK_ROWS = 1024
 
@@ -65,18 +66,5 @@ class RowSpool:
 def spool_folder(parent: Path, name: str) -> Path:
     """A fresh folder ``parent/.{name}.spool-{pid}-XXXX``; folders of dead processes are removed."""
     prefix = f".{name}.spool-"
-    for stale in parent.glob(f"{prefix}*"):
-        pid = stale.name[len(prefix) :].split("-", 1)[0]
-        if pid.isdigit() and not _alive(int(pid)):
-            shutil.rmtree(stale, ignore_errors=True)
+    sweep_dead(parent, prefix)
     return Path(tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}-", dir=parent))
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True

@@ -281,6 +281,35 @@ def test_m4a_without_ffmpeg_is_one_line(tmp_path: Path, monkeypatch) -> None:
 
 
 @pytest.mark.ffmpeg
+@pytest.mark.parametrize("name", ["a.m4a", "no_extension"])
+def test_m4a_without_ffprobe_names_ffprobe(tmp_path: Path, monkeypatch, name: str) -> None:
+    """Without ffprobe an M4A is not "format not recognised": the message names what is missing."""
+    wav = tmp_path / "src.wav"
+    sf.write(wav, tones(44100, 1.0), 44100)
+    path = _encode(wav, tmp_path / "a.m4a", "-c:a", "aac").rename(tmp_path / name)
+    monkeypatch.setattr("convodrive.audio.ffmpeg.shutil.which", lambda name: None)
+    with pytest.raises(InputFileError, match="needs ffprobe and ffmpeg") as err:
+        AudioSource(path)
+    assert str(err.value).startswith(str(path)) and "\n" not in str(err.value)
+
+
+def test_flac_failing_part_way_yields_what_came_before(tmp_path: Path) -> None:
+    """A FLAC cut in half fails to decode near 2.5 s of 5: the chunks before the failure come out
+    and the error names the position reached, not 0 s."""
+    whole = tmp_path / "whole.flac"
+    sf.write(whole, tones(16000, 5.0), 16000)
+    data = whole.read_bytes()
+    path = tmp_path / "cut.flac"
+    path.write_bytes(data[: len(data) // 2])
+    received = 0
+    with pytest.raises(InputFileError, match="cannot be decoded after") as err:
+        for chunk in AudioSource(path).chunks():
+            received += len(chunk.self_voice)
+    seconds = float(str(err.value).split("after ")[1].split(" s")[0])
+    assert 1.5 <= seconds <= 2.6 and received / ANALYSIS_RATE >= seconds - 0.2
+
+
+@pytest.mark.ffmpeg
 def test_damaged_m4a_stops_with_one_line_not_a_short_clip(tmp_path: Path) -> None:
     """AAC decoding skips what it cannot read and exits 0; the source compares what came out with
     the length the container states, so a damaged file is an error, not a silently shorter run."""
