@@ -1,4 +1,9 @@
-"""The outputs of ``eval compare``: a Markdown table, the same figures as JSON, and a PNG plot."""
+"""The outputs of ``eval compare``: a Markdown table, the same figures as JSON, and a PNG plot.
+
+When the ground-truth takes were scored, every method's distances (FD and FGD) are also given as a
+ratio to theirs: the other takes of the same audio are the floor the data sets, so 1.0 is as close
+as a method can be expected to come, and a bare distance says little on its own.
+"""
 
 from __future__ import annotations
 
@@ -9,6 +14,9 @@ from typing import Any
 from convodrive.eval.suite import COLUMNS
 from convodrive.plumbing.atomic import atomic_path, write_text_atomic
 
+FLOOR = "ground-truth"
+FLOOR_COLUMNS = tuple(n for n, _, _ in COLUMNS if n.startswith(("FD_", "FGD")))
+"""The distances given as a ratio to the floor's."""
 PLOTTED = ("FD_g body", "FD_g face", "FGD holistic", "FD_k body", "Div_sample", "BC", "lip r", "mouth shut")
 
 
@@ -16,13 +24,34 @@ def _cell(value: float | None) -> str:
     return "—" if value is None else f"{value:.3g}"
 
 
+def floor_ratios(results: dict[str, dict[str, Any]]) -> dict[str, dict[str, float | None]]:
+    """Each method's distances over the ground-truth takes' (empty when those were not scored)."""
+    floor = results.get(FLOOR)
+    if floor is None:
+        return {}
+
+    def ratio(value: float | None, base: float | None) -> float | None:
+        return None if value is None or not base else value / base
+
+    return {m: {n: ratio(fig.get(n), floor.get(n)) for n in FLOOR_COLUMNS} for m, fig in results.items()}
+
+
+def _table(columns: list[str], rows: dict[str, dict[str, Any]]) -> list[str]:
+    header = "| method | " + " | ".join(columns) + " |"
+    rule = "|---|" + "---|" * len(columns)
+    return [header, rule, *(f"| {m} | " + " | ".join(_cell(v) for v in fig.values()) + " |" for m, fig in rows.items())]
+
+
 def markdown(results: dict[str, dict[str, Any]], title: str) -> str:
     arrows = {"low": " ↓", "high": " ↑", "": ""}
-    header = "| method | " + " | ".join(f"{n}{arrows[b]}" for n, b, _ in COLUMNS) + " |"
-    rule = "|---|" + "---|" * len(COLUMNS)
-    rows = [f"| {m} | " + " | ".join(_cell(fig.get(n)) for n, _, _ in COLUMNS) + " |" for m, fig in results.items()]
-    notes = [f"- **{n}**{arrows[b]}: {what}" for n, b, what in COLUMNS]
-    return "\n".join([f"# {title}", "", header, rule, *rows, "", *notes]) + "\n"
+    figures = {m: {n: fig.get(n) for n, _, _ in COLUMNS} for m, fig in results.items()}
+    lines = [f"# {title}", "", *_table([f"{n}{arrows[b]}" for n, b, _ in COLUMNS], figures), ""]
+    ratios = floor_ratios(results)
+    if ratios:
+        lines += [f"## Distances as a ratio to the {FLOOR} takes' (1 is the floor the data sets)", ""]
+        lines += [*_table([f"{n} ↓" for n in FLOOR_COLUMNS], ratios), ""]
+    lines += [f"- **{n}**{arrows[b]}: {what}" for n, b, what in COLUMNS]
+    return "\n".join(lines) + "\n"
 
 
 def plot(results: dict[str, dict[str, Any]], path: Path, title: str) -> None:
@@ -53,6 +82,7 @@ def write_outputs(results: dict[str, dict[str, Any]], out: Path, title: str, con
     md, js, png = out / "compare.md", out / "compare.json", out / "compare.png"
     write_text_atomic(md, markdown(results, title))
     columns = [{"name": n, "better": b, "definition": w} for n, b, w in COLUMNS]
-    write_text_atomic(js, json.dumps({**context, "columns": columns, "results": results}, indent=2) + "\n")
+    document = {**context, "columns": columns, "results": results, "ratio_to_ground_truth": floor_ratios(results)}
+    write_text_atomic(js, json.dumps(document, indent=2) + "\n")
     plot(results, png, title)
     return [md, js, png]
