@@ -52,9 +52,8 @@ class FeetechServo:
     def power_cycle(self) -> None:
         """Power back after an outage: RAM back to defaults, the saved EEPROM kept, errors cleared."""
         self.update()
-        present = round(self._present)
-        self.factory_reset()
-        self.mem[:] = self.saved
+        present, saved = round(self._present), bytes(self.saved)
+        self.mem[:] = self.saved[:] = saved  # RAM at its factory values (kept in ``saved``), EEPROM as saved
         self.error = 0
         self._set("Present_Position", present)
         self._set("Goal_Position", present)
