@@ -1,8 +1,9 @@
 """The ``feetech`` backend's options, declared once (``convodrive.plugins.options``).
 
 The joint entries have the Dynamixel head's shape (``id``, ``zero_tick``, ``direction``,
-``min_tick``, ``max_tick``, ``ticks_per_unit``), so one calibration format serves both buses and
-``convodrive servo calibrate --bus feetech`` rewrites the same keys. This module imports no SDK:
+``min_tick``, ``max_tick``, ``ticks_per_unit``), so one calibration format serves both buses
+(``convodrive servo``'s ``set_joint_limits`` edits ``backends.feetech`` as it does ``dynamixel``).
+This module imports no SDK:
 the options can be listed and checked without the hardware extra.
 """
 

@@ -157,3 +157,17 @@ def test_convodrive_drive_at_30_hz_keeps_every_goal_inside_the_limits(tmp_path: 
     outside = [g for g in goals if not LIMITS[g.servo_id][0] <= g.value <= LIMITS[g.servo_id][1]]
     assert len(goals) >= 7 * report["frames"] and outside == []
     assert head["torque_off"] is True and not any(torque) and head["goal_writes"] >= report["frames"]
+
+
+def test_calibration_is_written_in_the_dynamixel_heads_format(tmp_path: Path) -> None:
+    from convodrive.cli.servo import set_joint_limits
+
+    source = Path(PROFILE.path)
+    target = tmp_path / "head.yaml"
+    target.write_text(set_joint_limits(source.read_text(), "feetech", {"jaw": (1800, 2050)}, source))
+    calibrated = load_profile(str(target))
+    assert (calibrated.backend_options("feetech")["joints"]["jaw"]["min_tick"], 2050) == (1800, 2050)
+    assert calibrated.backend_options("dynamixel")["joints"]["jaw"]["min_tick"] == 1819, "the other bus untouched"
+    backend = FeetechBackend({**calibrated.backend_options("feetech"), "port": "/dev/null"})
+    backend._hw_calibration(calibrated.spec)
+    assert backend._limits["jaw"] == (1800, 2050)
