@@ -41,7 +41,7 @@ NEEDS: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
         "scripts/setup.sh, or pip install 'convodrive[render]'",
     ),
     "ffmpeg": ((), ("ffmpeg", "ffprobe"), "apt install ffmpeg"),
-    "hardware": (("dynamixel_sdk", "serial"), (), "pip install 'convodrive[hardware]'"),
+    "hardware": (("dynamixel_sdk", "scservo_sdk", "serial"), (), "pip install 'convodrive[hardware]'"),
     "pocketsphinx": (("pocketsphinx",), (), "pip install 'convodrive[speech]'"),
     "espeak": ((), ("espeak-ng",), "apt install espeak-ng"),
     "xvfb": ((), ("Xvfb",), "apt install xvfb (scripts/setup.sh --dev)"),

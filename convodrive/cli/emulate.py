@@ -26,7 +26,7 @@ from convodrive.plumbing.safe_yaml import parse_scalar
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "emulate",
-        help="emulate a Dynamixel bus or a Pololu Maestro on a pty",
+        help="emulate a Dynamixel or Feetech bus, or a Pololu Maestro, on a pty",
         description="Serve an emulated servo bus on a pseudo-terminal; its path is "
         "printed on the first line. Runs until Ctrl-C.",
     )
@@ -44,6 +44,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="drop:RATE, corrupt:RATE, short:RATE, overload:ID, overheating:ID, input_voltage:ID, vanish:ID, port",
     )
     dxl.set_defaults(func=run_dynamixel)
+    fee = kinds.add_parser("feetech", help="Feetech STS/SCS servos (SCS protocol)")
+    fee.add_argument("--ids", default="1-7", help="servo ids, e.g. 1-7 or 1,2,5-6 (default 1-7)")
+    fee.add_argument("--model", default="sts3215", help="servo model (sts3215, sts3250, scs0009, ...)")
+    fee.add_argument("--baudrate", default="1000000", help="emulated wire speed in bits per second (reply timing)")
+    fee.add_argument("--link", help="also make this path a symlink to the pty (stable across --fault port)")
+    fee.add_argument(
+        "--fault",
+        action="append",
+        default=[],
+        metavar="KIND[:ARG][@T][+D]",
+        help="drop:RATE, corrupt:RATE, short:RATE, overload:ID, overheating:ID, input_voltage:ID, vanish:ID, port",
+    )
+    fee.set_defaults(func=run_feetech)
     mae = kinds.add_parser("maestro", help="Pololu Maestro servo controller")
     mae.add_argument("--channels", type=int, default=12, choices=(6, 12, 18, 24))
     mae.add_argument("--link", help="also make this path a symlink to the pty")
@@ -148,6 +161,25 @@ def run_dynamixel(args: argparse.Namespace) -> int:
     baudrate = check_options(DynamixelOptions, {"baudrate": parse_scalar(args.baudrate)}, plugin="--baudrate")
     log = StateLog("servo", "torque")
     emu = DynamixelEmulator(ids, args.model, baudrate=baudrate["baudrate"], link=args.link, on_torque=log)
+    for fault in faults:
+        emu.check_fault(fault)
+    emu.start()
+    for fault in faults:
+        emu.schedule(fault)
+    model = next(iter(emu.servos.values())).model.name
+    return _serve(emu, f"emulating {len(ids)} {model} servo(s), ids {args.ids}; Ctrl-C to stop", log)
+
+
+def run_feetech(args: argparse.Namespace) -> int:
+    from convodrive.backends.servo.dynamixel_emulator import parse_fault
+    from convodrive.backends.servo.feetech_emulator import FeetechEmulator
+    from convodrive.backends.servo.feetech_options import FeetechOptions
+
+    ids = parse_ids(args.ids)
+    faults = [parse_fault(f) for f in args.fault]
+    baudrate = check_options(FeetechOptions, {"baudrate": parse_scalar(args.baudrate)}, plugin="--baudrate")
+    log = StateLog("servo", "torque")
+    emu = FeetechEmulator(ids, args.model, baudrate=baudrate["baudrate"], link=args.link, on_torque=log)
     for fault in faults:
         emu.check_fault(fault)
     emu.start()
