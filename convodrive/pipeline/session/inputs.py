@@ -153,6 +153,10 @@ class QueuedVoice(VoiceSource):
             if segment not in self.dead:
                 self._queue.append((segment, np.zeros(0, np.float32), self.rate, time.monotonic()))
 
+    def queued_seconds(self) -> float:
+        with self._lock:
+            return sum(len(item[1]) / item[2] for item in self._queue)
+
     def clear(self) -> set[Segment]:
         """Drop everything not yet in the ring; the segments known so far are dead."""
         with self._lock:

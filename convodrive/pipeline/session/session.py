@@ -315,6 +315,12 @@ class LiveSession:
         at = time.monotonic() if at is None else at
         self._post(kind, self._line_time(kind, at), info)
 
+    def self_backlog(self) -> float:
+        """Player mode: seconds of voice fed and not yet played (what pacing a writer looks at)."""
+        if self.voice is None or self.speaker is None:
+            return 0.0
+        return self.voice.queued_seconds() + self.speaker.ring.available() / self.speaker.rate
+
     def on_playback(self, callback: Callable[[PlaybackReport], None]) -> None:
         """Player mode: ``callback`` hears when each segment starts and finishes playing (from the
         session's thread: hand it to your loop with ``call_soon_threadsafe``)."""
