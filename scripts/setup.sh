@@ -54,7 +54,7 @@ pip_quiet() {
 echo "setup: installing Python packages into .venv"
 pip_quiet install -U pip setuptools wheel
 extras="speech,sim,render,hardware,live,neural,eval"
-[ "$dev" = 1 ] && extras="$extras,train,frontend,dev"
+[ "$dev" = 1 ] && extras="$extras,train,frontend,pipecat,livekit,dev"  # the agent adapters: ~900 MB, dev only
 pip_quiet install -e ".[$extras]"
 # pyrender 0.1.45 pins PyOpenGL==3.1.0, which breaks MuJoCo's EGL/OSMesa bindings. The render
 # extra installs pyrender's real dependencies with PyOpenGL>=3.1.7; pyrender itself goes in

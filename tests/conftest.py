@@ -44,6 +44,8 @@ NEEDS: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
     "hardware": (("dynamixel_sdk", "scservo_sdk", "serial"), (), "pip install 'convodrive[hardware]'"),
     "pocketsphinx": (("pocketsphinx",), (), "pip install 'convodrive[speech]'"),
     "espeak": ((), ("espeak-ng",), "apt install espeak-ng"),
+    "pipecat": (("pipecat",), (), "pip install 'convodrive[pipecat]' (scripts/setup.sh --dev)"),
+    "livekit": (("livekit.agents",), (), "pip install 'convodrive[livekit]' (scripts/setup.sh --dev)"),
     "xvfb": ((), ("Xvfb",), "apt install xvfb (scripts/setup.sh --dev)"),
     "bvh_reader": (("bvh",), (), "pip install 'convodrive[dev]'"),
     "gltf_reader": (("pygltflib",), (), "pip install 'convodrive[dev]'"),

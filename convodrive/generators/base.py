@@ -17,8 +17,11 @@ from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import Any, ClassVar
 
 from convodrive.audio.source import AudioChunk, DyadicAudio
+from convodrive.generators.events import AgentState, ConversationEvent, Event, EventLog
 from convodrive.motion.clip import MotionClip, MotionFrame
 from convodrive.plugins.options import PluginOptions, coerce_options
+
+__all__ = ["AgentState", "ConversationEvent", "Event", "Generator", "take_seed"]
 
 
 class Generator(abc.ABC):
@@ -32,6 +35,14 @@ class Generator(abc.ABC):
 
     def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
         self.options = coerce_options(self.Options, options, plugin=f"generator {self.name}")
+        self.conversation = EventLog()
+        """The conversation events a live session sent (``on_event``); empty offline."""
+
+    def on_event(self, event: ConversationEvent) -> None:
+        """A conversation event (``generators.events``), from any thread, possibly late or ahead
+        of the frames it concerns. The default keeps it in ``conversation``, where ``stream`` may
+        read the state at each frame's time; a generator that ignores it moves from audio alone."""
+        self.conversation.add(event)
 
     @property
     def lookahead_frames(self) -> int:

@@ -22,8 +22,9 @@ from convodrive.audio.phones import pocketsphinx_available
 from convodrive.audio.source import ANALYSIS_RATE, AudioChunk, DyadicAudio, motion_frames_for
 from convodrive.generators.base import Generator, take_seed
 from convodrive.generators.procedural.body import BodySynth, yxz_axis_angle
+from convodrive.generators.procedural.conversation import ConversationOverlay
 from convodrive.generators.procedural.cues import CueBatch, CueTracker
-from convodrive.generators.procedural.face import FaceSynth
+from convodrive.generators.procedural.face import FaceSynth, gaze_channels
 from convodrive.generators.procedural.listener import ListenerSynth
 from convodrive.generators.procedural.options import ProceduralOptions
 from convodrive.generators.procedural.posture import PostureSynth
@@ -68,12 +69,17 @@ class ProceduralGenerator(Generator):
         """Analyse the audio once (the analysis ignores the seed) and synthesise every take from it."""
         analyzer = self._analyzer()
         cues = CueTracker(self.anticipation_frames)
-        synths = [_Synth(self.options, s) for s in seeds]
+        synths = [_Synth(self.options, s, ConversationOverlay(self.options, s, self.conversation)) for s in seeds]
+        events = synths[0].overlay
         received = 0
         try:
             for chunk in chunks:
                 received += len(chunk)
-                ready = cues.push(analyzer.push(chunk.self_voice, chunk.other_voice))
+                voice = chunk.self_voice
+                silent = events.self_silent(chunk.start, len(voice), ANALYSIS_RATE)
+                if silent is not None:  # interrupted or paused: that voice will never be heard
+                    voice = np.where(silent, 0.0, voice).astype(np.float32)
+                ready = cues.push(analyzer.push(voice, chunk.other_voice))
                 if ready is not None:
                     yield from zip(*(_frames(synth(ready)) for synth in synths))
             ready = cues.push(analyzer.finish(motion_frames_for(received / ANALYSIS_RATE)), final=True)
@@ -123,7 +129,9 @@ class ProceduralGenerator(Generator):
 class _Synth:
     """Features to motion for one take; call it on consecutive batches."""
 
-    def __init__(self, options: ProceduralOptions, seed: int) -> None:
+    def __init__(self, options: ProceduralOptions, seed: int, overlay: ConversationOverlay | None = None) -> None:
+        self.overlay = overlay
+        """The conversation's events, in a live session; None offline."""
         self.listener = ListenerSynth(options, seed)
         self.posture = PostureSynth(options, seed)
         self.face = FaceSynth(options, seed)
@@ -135,8 +143,15 @@ class _Synth:
         listener = self.listener.step(batch, s, o)
         posture = self.posture.step(batch.first, s["vad"], o["vad"], batch.cues["breath"])
         face, jaw, eyes = self.face.step(batch.first, s, o, features.visemes, listener, posture["inhale"])
+        overlay = self.overlay if self.overlay is not None and self.overlay.active else None
+        if overlay is not None:
+            states = overlay.states(batch.first, len(batch))
+            eyes = overlay.gaze(batch.first, states, eyes)
+            face = gaze_channels(face, eyes)
         pose = self.body.step(batch.first, s, o, eyes, listener, posture)
         pose[:, J["jaw"], 0] = jaw
+        if overlay is not None:
+            overlay.body(states, pose, face)
         # Yaw about +Y (positive looks to the character's left), then pitch about +X (positive looks down).
         eye_rot = yxz_axis_angle(np.stack([eyes[:, 0], eyes[:, 1], np.zeros(len(eyes))], axis=1))
         pose[:, J["left_eye_smplhf"]] = eye_rot

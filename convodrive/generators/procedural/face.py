@@ -149,15 +149,8 @@ class FaceSynth:
             face[:, B[ch]] = np.clip(face[:, B[ch]] + w * smile, 0.0, 1.0)
 
         eyes = self.eyes(gaze)
+        face = gaze_channels(face, eyes)
         yaw, pitch = eyes[:, 0], eyes[:, 1]
-        left = np.clip(yaw / EYE_YAW_MAX, 0.0, 1.0)  # looking toward the character's left (+X)
-        right = np.clip(-yaw / EYE_YAW_MAX, 0.0, 1.0)
-        face[:, B["eyeLookOutLeft"]] = left
-        face[:, B["eyeLookInRight"]] = left
-        face[:, B["eyeLookInLeft"]] = right
-        face[:, B["eyeLookOutRight"]] = right
-        face[:, B["eyeLookUpLeft"]] = face[:, B["eyeLookUpRight"]] = np.clip(-pitch / EYE_PITCH_MAX, 0.0, 1.0)
-        face[:, B["eyeLookDownLeft"]] = face[:, B["eyeLookDownRight"]] = np.clip(pitch / EYE_PITCH_MAX, 0.0, 1.0)
         eyes = np.stack(
             [np.clip(yaw, -EYE_YAW_MAX, EYE_YAW_MAX), np.clip(pitch, -EYE_PITCH_MAX, EYE_PITCH_MAX)], axis=1
         )
@@ -239,3 +232,18 @@ class FaceSynth:
             self._self_quiet = 0 if sp else self._self_quiet + 1
             self._prev_self = sp
         return blinks, gaze
+
+
+def gaze_channels(face: np.ndarray, eyes: np.ndarray) -> np.ndarray:
+    """Write the ``eyeLook*`` channels of ``face`` (n, 52) from gaze (n, 2) yaw/pitch in radians,
+    so the blendshapes and the eye joints agree; returns ``face``."""
+    yaw, pitch = eyes[:, 0], eyes[:, 1]
+    left = np.clip(yaw / EYE_YAW_MAX, 0.0, 1.0)  # looking toward the character's left (+X)
+    right = np.clip(-yaw / EYE_YAW_MAX, 0.0, 1.0)
+    face[:, B["eyeLookOutLeft"]] = left
+    face[:, B["eyeLookInRight"]] = left
+    face[:, B["eyeLookInLeft"]] = right
+    face[:, B["eyeLookOutRight"]] = right
+    face[:, B["eyeLookUpLeft"]] = face[:, B["eyeLookUpRight"]] = np.clip(-pitch / EYE_PITCH_MAX, 0.0, 1.0)
+    face[:, B["eyeLookDownLeft"]] = face[:, B["eyeLookDownRight"]] = np.clip(pitch / EYE_PITCH_MAX, 0.0, 1.0)
+    return face

@@ -1,0 +1,3 @@
+"""Adapters from voice-agent frameworks to a ``LiveSession`` (``convodrive.pipeline.session``):
+``pipecat`` (``pip install 'convodrive[pipecat]'``). Each imports its framework, so import the
+one you use; nothing else in convodrive imports them."""

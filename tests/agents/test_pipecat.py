@@ -1,0 +1,185 @@
+"""Pipecat's real pipeline worker driving a live session: follower mode behind an output
+transport that sleeps each chunk's duration (a fake speaker), player mode through
+``ConvodriveOutputTransport``; the recorder as the backend. No network: nothing here talks to
+a service, and Pipecat sends no usage data."""
+
+from __future__ import annotations
+
+from tests.conftest import require
+
+pytestmark = [require("pipecat"), require("espeak")]
+
+import asyncio  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from pipecat.frames.frames import (  # noqa: E402
+    EndFrame,
+    FunctionCallInProgressFrame,
+    InputAudioRawFrame,
+    InterruptionFrame,
+    LLMFullResponseStartFrame,
+    OutputAudioRawFrame,
+    StartFrame,
+    TTSAudioRawFrame,
+    TTSStartedFrame,
+    TTSStoppedFrame,
+    UserStartedSpeakingFrame,
+    UserStoppedSpeakingFrame,
+)
+from pipecat.pipeline.pipeline import Pipeline  # noqa: E402
+from pipecat.pipeline.worker import PipelineWorker  # noqa: E402
+from pipecat.transports.base_output import BaseOutputTransport  # noqa: E402
+from pipecat.transports.base_transport import TransportParams  # noqa: E402
+from pipecat.workers.runner import WorkerRunner  # noqa: E402
+
+from convodrive.agents.pipecat import ConvodriveObserver, ConvodriveOutputTransport  # noqa: E402
+from convodrive.audio.source import ANALYSIS_RATE  # noqa: E402
+from convodrive.generators.base import Event  # noqa: E402
+from convodrive.pipeline.session import LiveSession  # noqa: E402
+from tests.pipeline.session.helpers import CHUNK, CLOSED, mouth, voice  # noqa: E402
+
+RATE = ANALYSIS_RATE
+
+
+class FakeSpeaker(BaseOutputTransport):
+    """An output transport whose write takes as long as the chunk plays."""
+
+    def __init__(self) -> None:
+        super().__init__(
+            TransportParams(audio_out_enabled=True, audio_out_sample_rate=RATE, audio_out_end_silence_secs=0)
+        )
+        self.writes: list[float] = []
+
+    async def start(self, frame: StartFrame) -> None:
+        await super().start(frame)
+        await self.set_transport_ready(frame)
+
+    async def write_audio_frame(self, frame: OutputAudioRawFrame) -> bool:
+        self.writes.append(time.monotonic())
+        await asyncio.sleep(frame.num_frames / frame.sample_rate)
+        return True
+
+
+def reply(pcm: np.ndarray, context: str) -> list:
+    n = int(0.1 * RATE)
+    chunks = [TTSAudioRawFrame(pcm[i : i + n].tobytes(), RATE, 1, context_id=context) for i in range(0, len(pcm), n)]
+    return [TTSStartedFrame(context_id=context), *chunks, TTSStoppedFrame(context_id=context)]
+
+
+async def converse(session: LiveSession, output, cut_after: float) -> dict[str, float]:
+    """A user turn, thinking with a tool call, a reply played whole, a second reply interrupted;
+    returns when (monotonic) each step was sent."""
+    worker = PipelineWorker(Pipeline([output]), observers=[ConvodriveObserver(session)], cancel_on_idle_timeout=False)
+    started = asyncio.Event()
+
+    @worker.event_handler("on_pipeline_started")
+    async def _started(worker, frame):
+        started.set()
+
+    marks: dict[str, float] = {}
+    pcm = voice()
+
+    async def script() -> None:
+        await asyncio.wait_for(started.wait(), 10)
+        await worker.queue_frame(UserStartedSpeakingFrame())
+        silence = np.zeros(int(0.02 * RATE), np.int16).tobytes()
+        for _ in range(40):
+            await worker.queue_frame(InputAudioRawFrame(silence, RATE, 1))
+            await asyncio.sleep(0.02)
+        marks["turn_end"] = time.monotonic()
+        await worker.queue_frame(UserStoppedSpeakingFrame())
+        await worker.queue_frame(LLMFullResponseStartFrame())
+        await worker.queue_frame(FunctionCallInProgressFrame(function_name="lookup", tool_call_id="1", arguments={}))
+        await asyncio.sleep(1.0)
+        marks["reply"] = time.monotonic()
+        for frame in reply(pcm[: 2 * RATE], "c1"):
+            await worker.queue_frame(frame)
+        await asyncio.sleep(2.8)
+        marks["reply2"] = time.monotonic()
+        for frame in reply(pcm, "c2"):
+            await worker.queue_frame(frame)
+        await asyncio.sleep(cut_after)
+        marks["cut"] = time.monotonic()
+        await worker.queue_frame(InterruptionFrame())
+        await asyncio.sleep(1.0)
+        await worker.queue_frame(EndFrame())
+
+    runner = WorkerRunner(handle_sigint=False)
+    await runner.add_workers(worker)
+    await asyncio.gather(runner.run(), script())
+    return marks
+
+
+def run(tmp_path, mode: str):
+    session = LiveSession.open(
+        mode=mode, backends=("record",), out_dir=tmp_path, generator_options={"phones": False}, self_rate=RATE
+    )
+    output = FakeSpeaker() if mode == "follower" else ConvodriveOutputTransport(session)
+    try:
+        marks = asyncio.run(converse(session, output, cut_after=1.2))
+    finally:
+        session.close()
+    return session, output, marks
+
+
+def kinds(session: LiveSession) -> list[Event]:
+    out: list[Event] = []
+    for _, e in session.events:
+        if not out or out[-1] is not e.kind:
+            out.append(e.kind)
+    return out
+
+
+def eye_angle(tmp_path) -> np.ndarray:
+    from convodrive.motion.npz import load_clip
+    from convodrive.motion.skeleton import JOINT_INDEX as J
+
+    clip = load_clip(tmp_path / "motion.npz")
+    return np.degrees(np.linalg.norm(clip.pose[:, J["left_eye_smplhf"]], axis=1))
+
+
+@pytest.mark.timeout(120)
+def test_follower_behind_pipecats_output_transport(tmp_path):
+    session, speaker, marks = run(tmp_path, "follower")
+    order = kinds(session)
+    expected = [Event.USER_TURN_START, Event.USER_TURN_END, Event.THINKING_START, Event.TOOL_START]
+    assert order[:4] == expected
+    assert order.index(Event.SPEAKING_START) > 3
+    assert order[-2:] in ([Event.INTERRUPTED, Event.SPEAKING_END], [Event.SPEAKING_END, Event.INTERRUPTED])
+    # Played-time anchors within one chunk of the fake speaker's writes.
+    starts = [e for _, e in session.events if e.kind is Event.SPEAKING_START and "segment" in e.info]
+    first_write = [w for w in speaker.writes if w > marks["reply"]][0]
+    assert abs(starts[0].at - (session.time_at(first_write) + session.delay)) < CHUNK + 0.005
+    # The interruption: the mouth is shut 100 ms after the cut shows (delay late).
+    times, jaw = mouth(session)
+    shown = marks["cut"] + session.delay
+    assert jaw[(times > shown - 0.8) & (times < shown - 0.05)].max() > 0.2
+    assert jaw[times > shown + 0.1].max() < CLOSED
+    # Thinking: the look-away, mouth shut.
+    eyes = eye_angle(tmp_path)
+    think_at = [e.at for _, e in session.events if e.kind is Event.TOOL_START][0]
+    thinking = slice(int((think_at + 0.3) * 30), int((starts[0].at - 0.05) * 30))
+    before = slice(int((think_at - 0.7) * 30), int((think_at - 0.1) * 30))
+    assert eyes[thinking].mean() > eyes[before].mean() + 8.0
+    at_think = (times > marks["turn_end"] + session.delay + 0.1) & (times < first_write + session.delay - 0.05)
+    assert jaw[at_think].max() < CLOSED
+
+
+@pytest.mark.timeout(120)
+def test_player_plays_through_the_convodrive_output_transport(tmp_path):
+    session, _, marks = run(tmp_path, "player")
+    order = kinds(session)
+    assert order[:4] == [Event.USER_TURN_START, Event.USER_TURN_END, Event.THINKING_START, Event.TOOL_START]
+    assert Event.SPEAKING_START in order and order[-1] is Event.INTERRUPTED
+    played = session.speaker.samples()
+    cut = int((session.speaker.position_at(marks["cut"]) + 0.03) * RATE)
+    assert np.abs(played[cut:]).max() < 1e-6  # nothing of the cut reply plays after the cut
+    heard = np.nonzero(np.abs(played) > 0.05)[0] / RATE
+    first_heard = session.speaker.mono_of(heard[0])
+    # Writes are paced to playing: the first reply is heard soon after it was sent, not ahead.
+    assert 0.0 < first_heard - marks["reply"] < 0.4
+    times, jaw = mouth(session)
+    assert jaw[(times > first_heard) & (times < first_heard + 1.5)].max() > 0.2
+    assert jaw[times > marks["cut"] + 0.1].max() < CLOSED

@@ -1,0 +1,66 @@
+"""What the live-session tests share: a voice, a fake speaker that reports what it played, and
+reading the motion a session made."""
+
+from __future__ import annotations
+
+import functools
+import threading
+import time
+
+import numpy as np
+
+from convodrive.audio.source import ANALYSIS_RATE
+from convodrive.pipeline.session import LiveSession
+
+CLOSED = 0.05
+"""jawOpen below this is a closed mouth."""
+CHUNK = 0.04
+"""The fake speakers' chunk: Pipecat's 40 ms."""
+
+
+@functools.lru_cache(maxsize=2)
+def voice(
+    text: str = "Well, the train leaves at nine, and then we walk along the river to the old bridge.",
+) -> np.ndarray:
+    """Speech at 16 kHz (espeak-ng), as int16."""
+    from convodrive.audio.synth import speak
+
+    return (np.clip(speak(text, sample_rate=ANALYSIS_RATE), -1, 1) * 32767).astype(np.int16)
+
+
+def wait_until(condition, timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def feed_silence(session: LiveSession, seconds: float, stop: threading.Event) -> threading.Thread:
+    """The partner's microphone: 20 ms of silence every 20 ms, until ``stop``."""
+
+    def run() -> None:
+        block = np.zeros(int(0.02 * ANALYSIS_RATE), np.int16)
+        t0 = time.monotonic()
+        n = 0
+        while not stop.is_set() and n * 0.02 < seconds:
+            session.feed_partner(block.tobytes(), ANALYSIS_RATE, at=t0 + n * 0.02)
+            n += 1
+            time.sleep(max(t0 + (n + 1) * 0.02 - time.monotonic(), 0))
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    return thread
+
+
+def mouth(session: LiveSession) -> tuple[np.ndarray, np.ndarray]:
+    """(monotonic dispatch times, jawOpen) of the frames the session handed out."""
+    frames = list(session.frames)
+    return np.array([f[1] for f in frames]), np.array([f[2] for f in frames])
+
+
+def onset(times: np.ndarray, jaw: np.ndarray, after: float, level: float = 0.15) -> float | None:
+    """The first dispatch time after ``after`` at which the mouth is open past ``level``."""
+    open_ = np.nonzero((times > after) & (jaw > level))[0]
+    return float(times[open_[0]]) if len(open_) else None
