@@ -175,7 +175,8 @@ for info in pkgutil.walk_packages(convodrive.__path__, "convodrive.", onerror=la
     except Exception as exc:
         failed[info.name] = f"{type(exc).__name__}: {exc}"
 outside = [n for n in names if not (getattr(sys.modules[n], "__file__", None) or "").startswith(sys.prefix)]
-print(json.dumps({"imported": names, "failed": failed, "outside": outside}))
+editable = [repr(f) for f in sys.meta_path if "editable" in repr(f).lower()]
+print(json.dumps({"imported": names, "failed": failed, "outside": outside, "editable": editable}))
 """
 
 
@@ -192,6 +193,7 @@ def test_the_installed_wheel_imports_every_module(venv: Path, tmp_path: Path) ->
     result = json.loads(out.stdout.splitlines()[-1])
     assert result["failed"] == {}
     assert result["outside"] == [], "modules loaded from outside the installed wheel"
+    assert result["editable"] == [], "a development install's finder is active"
     for module in ("convodrive.corpus.importers", "convodrive.retargeting", "convodrive.backends.servo"):
         assert module in result["imported"]
     assert len(result["imported"]) > 150
