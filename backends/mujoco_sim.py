@@ -135,8 +135,8 @@ class MujocoBackend(Backend):
         super().open(spec, session)
         import mujoco
 
-        from convodrive.plumbing.mjcf import compile_spec, fix_root, load_spec
-        from convodrive.plumbing.mujoco_gl import select_gl
+        from convodrive.sims.gl import select_gl
+        from convodrive.sims.mjcf import compile_spec, fix_root, load_spec
 
         self.gl, gl_reason = select_gl()
         self.model_path = _resolve_model(self.options.model, spec)

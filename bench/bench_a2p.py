@@ -39,7 +39,7 @@ import numpy as np
 
 from bench.learned import speech_like, untrained_folder
 from convodrive.audio.source import DyadicAudio
-from convodrive.generators.a2p import A2PGenerator
+from convodrive.generators.a2p.generator import A2PGenerator
 from convodrive.neural.autoregressive import KVCache, sample_tokens
 
 TOKENS = 80

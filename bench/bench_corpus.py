@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from convodrive.corpus import Corpus
-from convodrive.training.corpus_maker import default_jobs, make_corpus
+from convodrive.corpus.maker import default_jobs, make_corpus
+from convodrive.generators.procedural import ProceduralGenerator
 
 
 def read_windows(folder: Path, count: int, length: int = 180) -> dict:
@@ -51,7 +52,7 @@ def main() -> None:
         folder = args.corpus
         if folder is None:
             folder = tmp / "corpus"
-            report = make_corpus(args.hours, folder, seed=0, jobs=args.jobs)
+            report = make_corpus(args.hours, folder, ProceduralGenerator, seed=0, jobs=args.jobs)
             result["make"] = report.to_json()
         result["read"] = read_windows(folder, args.windows)
     finally:

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from bench.learned import speech_like, untrained_folder
-from convodrive.generators.probtalk import ProbTalkGenerator
+from convodrive.generators.probtalk.generator import ProbTalkGenerator
 from convodrive.motion import representation as rep
 
 ITERATIONS = (1, 2, 4, 8, 16)

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from convodrive.audio.source import ANALYSIS_RATE, CHUNK_SAMPLES, AudioChunk, AudioSource
-from convodrive.generators.probtalk import ProbTalkGenerator
+from convodrive.generators.probtalk.generator import ProbTalkGenerator
 from convodrive.motion.rotations import axis_angle_to_matrix
 
 DIALOGUE = Path(__file__).resolve().parents[1] / "samples" / "dialogue.wav"

@@ -1,7 +1,7 @@
 """convodrive: conversation audio to embodied motion, sent 30 times a second to any body.
 
 The canonical motion types (``convodrive.motion``) are the contract every part speaks; see
-DESIGN.md in the project for which part may import which.
+docs/ARCHITECTURE.md in the project for its folders and which part may import which.
 """
 
 __version__ = "0.1.0"

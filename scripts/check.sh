@@ -19,10 +19,11 @@ layout=$(mktemp -d)
 trap 'rm -rf "$layout"' EXIT
 "$bin/python" scripts/installed_layout.py "$layout"
 
-# mypy: the canonical motion types, the scheduler, plumbing, plugins, the pipeline and the corpus.
+# mypy: the canonical motion types, the scheduler, plumbing, plugins, the pipeline, the corpus and
+# the simulator side's modules.
 (cd "$layout" && "$repo/$bin/mypy" --config-file "$repo/pyproject.toml" \
     convodrive/motion convodrive/scheduler convodrive/plumbing convodrive/plugins convodrive/pipeline \
-    convodrive/corpus)
+    convodrive/corpus convodrive/sims)
 
 (cd "$layout" && "$repo/$bin/lint-imports" --config "$repo/.importlinter" --no-cache)
 echo "check: ruff, mypy and import contracts pass"

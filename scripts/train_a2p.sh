@@ -148,7 +148,7 @@ env = "".join(f"{k}={v} " for k, v in sorted(os.environ.items()) if k in ("SCALE
 card = f"""
 ## How these weights were made
 
-- command: `{env}scripts/train_a2p.sh {corpus} {runs}` at commit `{commit}`
+- command: `{env}scripts/train_a2p.sh {Path(corpus).name} {runs.name}` at commit `{commit}`
   (stages {steps} steps, `small` preset, seed 0)
 - trained on (stage by stage): {where}
 - corpus: made by `convodrive corpus make --hours 2 --seed 0` (speech by espeak-ng, motion by convodrive's

@@ -80,7 +80,7 @@ env = "".join(f"{k}={v} " for k, v in sorted(os.environ.items()) if k in ("SHIP_
 card = f"""
 ## How these weights were made
 
-- command: `{env}scripts/train_probtalk.sh {corpus} {runs}` at commit `{commit}`
+- command: `{env}scripts/train_probtalk.sh {Path(corpus).name} {runs.name}` at commit `{commit}`
   (stages vq {steps['vq']}, predictor {steps['predictor']}, refiner {steps['refiner']} steps, `small` preset, seed 0)
 - trained on: {where}
 - corpus: made by `convodrive corpus make --hours 2 --seed 0` (speech by espeak-ng, motion by convodrive's

@@ -1,13 +1,13 @@
 #!/usr/bin/env bash
-# Vendor three.js from the npm registry into backends/web/three/ (the live page ships it: no CDN).
+# Vendor three.js from the npm registry into backends/web/vendor/three/ (the live page ships it: no CDN).
 #
-#   scripts/vendor_three.sh [VERSION]      (default: the version in backends/web/three/VERSION)
+#   scripts/vendor_three.sh [VERSION]      (default: the version in backends/web/vendor/three/VERSION)
 #
 # Copies the ES module build (three.module.js and the three.core.js it imports), the glTF loader
 # and the two utilities it imports, and the licence.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-dest=backends/web/three
+dest=backends/web/vendor/three
 version=${1:-$(cat "$dest/VERSION")}
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT

@@ -70,10 +70,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_make(args: argparse.Namespace) -> int:
-    from convodrive.training.corpus_maker import make_corpus
+    from convodrive.corpus.maker import make_corpus
+    from convodrive.generators.procedural import ProceduralGenerator
 
     with frame_progress("making corpus (conversations)") as progress:
-        report = make_corpus(args.hours, args.out, seed=args.seed, jobs=args.jobs, takes=args.takes, progress=progress)
+        report = make_corpus(
+            args.hours,
+            args.out,
+            ProceduralGenerator,
+            seed=args.seed,
+            jobs=args.jobs,
+            takes=args.takes,
+            progress=progress,
+        )
     figures = report.to_json()
     print(
         f"{figures['corpus']}: {figures['hours']} h in {figures['conversations']} conversation(s), "

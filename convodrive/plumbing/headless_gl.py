@@ -4,7 +4,7 @@ MuJoCo's camera and pyrender both draw offscreen, through EGL (fast; a GPU if th
 Mesa's llvmpipe) or OSMesa (pure software). PyOpenGL binds to one platform the first time it is
 imported and cannot switch, so each library picks before its import, by rendering a tiny image
 in a child process for each candidate: a broken driver then crashes the child, not the run.
-``convodrive.plumbing.mujoco_gl`` and ``convodrive.backends.avatar.pyrender_gl`` hold the two probes.
+``convodrive.sims.gl`` and ``convodrive.backends.avatar.pyrender_gl`` hold the two probes.
 """
 
 from __future__ import annotations

@@ -306,6 +306,33 @@ def export_untrained(
         return export_model(checkpoint, out, int8=int8)
 
 
+def _train_command(meta: dict[str, Any], corpus: dict[str, Any]) -> str:
+    """The ``convodrive train`` that made these weights, the corpus named by its folder's name."""
+    train = meta["training"].get("train_config") or {}
+    parts = ["convodrive train", meta["model"], "--corpus", str(corpus.get("name") or "CORPUS")]
+    parts += ["--preset", str(meta["preset"]), "--stage", str(meta["stage"]), "--steps", str(meta["training"]["steps"])]
+    if "seed" in train:
+        parts += ["--seed", str(train["seed"])]
+    return " ".join(parts)
+
+
+def _corpus_text(corpus: dict[str, Any]) -> str:
+    """What the corpus is and how to make it again (its manifest's source), never where it lay on
+    the machine that trained: a card travels with the weights."""
+    if not corpus:
+        return "not recorded"
+    source = corpus.get("source") or {}
+    facts = f"{corpus.get('name', '?')}, {corpus.get('hours', '?')} h, {corpus.get('conversations', '?')} conversations"
+    if source.get("kind") == "made":
+        how = f"made by `convodrive corpus make --hours {source.get('hours')} --seed {source.get('seed')} --takes {source.get('takes')}`"
+        return f"{facts}; {how} (teacher: the {source.get('generator', '?')} generator)"
+    if source.get("kind"):  # imported: its kind and options, not the folder it came from
+        flags = f" --speaker {source['speaker']}" if source.get("speaker") else ""
+        flags += " --mano FILE" if source.get("mano") else ""
+        return f"{facts}; imported by `convodrive corpus import {source['kind']} SRC{flags}`"
+    return facts
+
+
 def model_card(recipe: Recipe, config: Any, spec: DataSpec, meta: dict[str, Any]) -> str:
     training = meta["training"]
     corpus = spec.info.get("corpus", {}) if isinstance(spec.info.get("corpus"), dict) else {}
@@ -315,8 +342,8 @@ def model_card(recipe: Recipe, config: Any, spec: DataSpec, meta: dict[str, Any]
         recipe.card(config, spec),
         "",
         "## Training",
-        f"- corpus: `{training['corpus']}`"
-        + (f" ({corpus.get('name', '')}, {corpus.get('hours', '?')} h)" if corpus else ""),
+        f"- command: `{_train_command(meta, corpus)}`, then `convodrive export RUN`",
+        f"- corpus: {_corpus_text(corpus)}",
         f"- steps: {training['steps']}, global batch {training['train_config'].get('batch_size')}, processes {training['world_size']}",
         f"- commit: `{training['commit']}`, torch {training['torch']}",
         f"- licence of the weights: {corpus.get('licence', 'that of the training corpus')}",

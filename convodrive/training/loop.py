@@ -24,10 +24,10 @@ import numpy as np
 import torch
 
 from convodrive.plumbing.errors import UserError
-from convodrive.plumbing.heap import keep_freed_blocks
 from convodrive.training import distributed
 from convodrive.training.checkpoint import list_checkpoints, load_checkpoint, prune_checkpoints, save_checkpoint
 from convodrive.training.config import TrainConfig, to_dict
+from convodrive.training.heap import keep_freed_blocks
 from convodrive.training.logbook import Logbook
 from convodrive.training.recipe import Batch, Examples, Recipe, StartingPoint, StepContext, TrainingData, to_device
 from convodrive.training.registry import get_preset, get_recipe
@@ -178,7 +178,7 @@ def train(request: TrainRequest) -> TrainResult:
     if request.workers is not None and request.workers < 0:
         raise UserError(f"--workers must be at least 0, got {request.workers}")
     torch.set_num_threads(request.threads)
-    keep_freed_blocks()  # each step's activations reuse the last one's pages (plumbing/heap.py)
+    keep_freed_blocks()  # each step's activations reuse the last one's pages (training/heap.py)
     procs = distributed.start(request.device)
     try:
         workers = request.workers if request.workers is not None else default_workers(procs)

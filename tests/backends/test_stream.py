@@ -138,9 +138,9 @@ def test_a_busy_port_is_one_line(tmp_path: Path, talk: Path) -> None:
 def test_page_files_stay_inside_the_page(tmp_path: Path, talk: Path) -> None:
     run, url = start_drive(talk, tmp_path)
     try:
-        for path in ("three/three.module.js", "three/LICENSE", "live.js"):
+        for path in ("vendor/three/three.module.js", "vendor/three/LICENSE", "live.js"):
             assert urllib.request.urlopen(url + path, timeout=10).status == 200
-        for path in ("../stream.py", "%2e%2e/stream.py", "three/../../stream.py", ".hidden"):
+        for path in ("../stream.py", "%2e%2e/stream.py", "vendor/three/../../../stream.py", ".hidden"):
             with pytest.raises(urllib.error.HTTPError) as err:
                 urllib.request.urlopen(url + path, timeout=10)
             assert err.value.code == 404

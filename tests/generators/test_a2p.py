@@ -26,7 +26,7 @@ from tests.corpora import turn_taking_audio
 pytestmark = [require("torch"), require("onnxruntime"), pytest.mark.timeout(900)]
 """The first test also pays for the model folder: twelve graphs exported, each checked for parity."""
 
-from convodrive.generators.a2p import BODY, FACE, A2PGenerator  # noqa: E402
+from convodrive.generators.a2p.generator import BODY, FACE, A2PGenerator  # noqa: E402
 
 
 def _spec(speakers: list[str]):  # type: ignore[no-untyped-def]

@@ -12,7 +12,7 @@ import pytest
 from convodrive.audio.source import AudioSource, DyadicAudio
 from convodrive.eval.behaviour import behaviour_figures
 from convodrive.eval.segments import load_segments
-from convodrive.generators.a2p import A2PGenerator
+from convodrive.generators.a2p.generator import A2PGenerator
 from tests.conftest import REPO
 from tests.seams import seam_changes
 

@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from convodrive.audio.source import AudioChunk, DyadicAudio
-from convodrive.generators.probtalk import ProbTalkGenerator
+from convodrive.generators.probtalk.generator import ProbTalkGenerator
 from convodrive.motion import representation as rep
 from convodrive.neural.maskgit import draw_uniforms
 from convodrive.neural.maskgit import maskgit_sample as numpy_maskgit_sample

@@ -11,7 +11,7 @@ import pytest
 from convodrive.audio.source import AudioSource
 from convodrive.eval.behaviour import behaviour_figures
 from convodrive.eval.segments import load_segments
-from convodrive.generators.probtalk import ProbTalkGenerator
+from convodrive.generators.probtalk.generator import ProbTalkGenerator
 from convodrive.motion.skeleton import JOINT_INDEX
 from tests.conftest import REPO
 from tests.seams import seam_changes

@@ -17,7 +17,7 @@ import numpy as np
 
 from convodrive.audio.source import ANALYSIS_RATE
 from convodrive.audio.synth import PARTNER, SELF, mix_voices, speak
-from convodrive.training.phrases import BANKS
+from convodrive.corpus.phrases import BANKS
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,10 +1,11 @@
-"""The bootstrap corpus: synthetic conversations, motion from the procedural generator as teacher.
+"""The bootstrap corpus: synthetic conversations, motion from a teacher generator (the procedural one).
 
 Each conversation is planned from ``(seed, index)`` alone: a language, a "speaker" (the person on
 channel 0: a voice and a motion style, carried as the speaker label), a partner voice and a length.
-It is spoken by espeak-ng with realistic turn taking (``dialogues``), and the procedural generator
-makes ``takes`` takes of self's motion from it (different seeds: the one-to-many structure the
-models learn). Conversations are made in worker processes and written in order by one
+It is spoken by espeak-ng with realistic turn taking (``dialogues``), and the teacher makes
+``takes`` takes of self's motion from it (different seeds: the one-to-many structure the models
+learn). The teacher is handed in (``convodrive corpus make`` hands the procedural generator's
+class), since generators sit a layer above the corpus (docs/ARCHITECTURE.md). Conversations are made in worker processes and written in order by one
 ``CorpusWriter``, so the corpus depends on the seed only, never on the number of jobs.
 """
 
@@ -15,19 +16,34 @@ import dataclasses
 import multiprocessing
 import os
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from convodrive.audio.source import DyadicAudio
+from convodrive.corpus.dialogues import TurnTaking, Voice, synthesize
 from convodrive.corpus.writer import CorpusWriter, Prepared, Recording, prepare, quantise
-from convodrive.generators.procedural import ProceduralGenerator
-from convodrive.training.dialogues import TurnTaking, Voice, synthesize
+from convodrive.motion.clip import MotionClip
 
 LICENCE = "no third-party data: speech synthesised by espeak-ng, motion by convodrive's procedural generator"
 CONVERSATION_SECONDS = (60.0, 150.0)
+
+
+class _Takes(Protocol):
+    def generate(self, audio: DyadicAudio, seed: int = 0, num_samples: int = 1) -> Sequence[MotionClip]: ...
+
+
+class Teacher(Protocol):
+    """A generator class: made from a speaker's style (its options), it makes the takes; the
+    corpus's manifest records its name."""
+
+    name: str
+
+    def __call__(self, options: Mapping[str, Any]) -> _Takes: ...
+
+
 MIN_SECONDS = 8.0
 
 
@@ -124,7 +140,7 @@ def plan_corpus(hours: float, seed: int) -> list[ConversationPlan]:
     return plans
 
 
-def make_conversation(plan: ConversationPlan, takes: int) -> Prepared:
+def make_conversation(plan: ConversationPlan, takes: int, teacher: Teacher) -> Prepared:
     """Speak one planned conversation, make its takes, and prepare it for the writer."""
     rng = np.random.default_rng(plan.seed)
     dialogue = synthesize((plan.self_voice, plan.partner_voice), plan.seconds, rng, TurnTaking())
@@ -133,9 +149,7 @@ def make_conversation(plan: ConversationPlan, takes: int) -> Prepared:
     # The teacher's options in full (its phone decoder only knows English), so that eval compare
     # can score the teacher as it taught.
     style = {**plan.speaker.style, "phones": english}
-    clips = ProceduralGenerator(style).generate(
-        DyadicAudio(audio[:, 0], audio[:, 1]), seed=plan.seed, num_samples=takes
-    )
+    clips = teacher(style).generate(DyadicAudio(audio[:, 0], audio[:, 1]), seed=plan.seed, num_samples=takes)
     metadata = {
         "language": plan.language,
         "voices": {"self": plan.self_voice.to_json(), "partner": plan.partner_voice.to_json()},
@@ -146,7 +160,7 @@ def make_conversation(plan: ConversationPlan, takes: int) -> Prepared:
     return prepare(Recording(plan.id, audio, clips, plan.speaker.label, metadata=metadata))
 
 
-def _work(job: tuple[ConversationPlan, int]) -> Prepared:
+def _work(job: tuple[ConversationPlan, int, Teacher]) -> Prepared:
     return make_conversation(*job)
 
 
@@ -180,20 +194,22 @@ def default_jobs() -> int:
 def make_corpus(
     hours: float,
     out: str | Path,
+    teacher: Teacher,
     seed: int = 0,
     jobs: int | None = None,
     takes: int = 4,
     progress: Callable[[int, int], None] | None = None,
 ) -> MakeReport:
-    """Make ``hours`` of corpus in ``out`` (a new or empty folder) with ``jobs`` worker processes."""
+    """Make ``hours`` of corpus in ``out`` (a new or empty folder) with ``jobs`` worker processes,
+    motion by ``teacher`` (a class the workers can unpickle by name)."""
     jobs = jobs or default_jobs()
     plans = plan_corpus(hours, seed)
     load_before = os.getloadavg()
     start = time.perf_counter()
-    source = {"kind": "made", "hours": hours, "seed": seed, "takes": takes, "generator": "procedural"}
+    source = {"kind": "made", "hours": hours, "seed": seed, "takes": takes, "generator": teacher.name}
     frames = 0
     with CorpusWriter(out, source, seed=seed, licence=LICENCE) as writer, contextlib.ExitStack() as stack:
-        work = [(p, takes) for p in plans]
+        work = [(p, takes, teacher) for p in plans]
         if jobs == 1:
             results: Iterator[Prepared] = map(_work, work)
         else:

@@ -8,13 +8,13 @@ import sys
 
 import pytest
 
-from convodrive.plumbing.heap import keep_freed_blocks
+from convodrive.training.heap import keep_freed_blocks
 
 # Ten rounds of what a training step does to the heap: 30 blocks of 5 MB live at once, then freed.
 _PROBE = """
 import resource, sys
 import numpy as np
-from convodrive.plumbing.heap import keep_freed_blocks
+from convodrive.training.heap import keep_freed_blocks
 if sys.argv[1] == "keep":
     assert keep_freed_blocks()
 def step():

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from convodrive.plumbing.mujoco_gl import select_gl
+from convodrive.sims.gl import select_gl
 
 select_gl()  # must precede the first import of mujoco in this process
 

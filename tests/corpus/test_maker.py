@@ -10,11 +10,11 @@ import pytest
 
 from convodrive.audio.source import DyadicAudio
 from convodrive.corpus import Corpus
+from convodrive.corpus.dialogues import synthesize
+from convodrive.corpus.maker import SPEAKERS, make_corpus, plan_corpus
 from convodrive.eval.behaviour import GAZE_AT_PARTNER_DEG
 from convodrive.generators.procedural import ProceduralGenerator
 from convodrive.motion.skeleton import JOINT_INDEX
-from convodrive.training.corpus_maker import SPEAKERS, make_corpus, plan_corpus
-from convodrive.training.dialogues import synthesize
 from tests.conftest import run_cli
 
 
@@ -91,7 +91,7 @@ def test_speaker_styles_move_differently() -> None:
 
 @pytest.mark.espeak
 def test_make_is_deterministic_whatever_the_jobs(tmp_path: Path) -> None:
-    a = make_corpus(0.012, tmp_path / "a", seed=9, jobs=1)
+    a = make_corpus(0.012, tmp_path / "a", ProceduralGenerator, seed=9, jobs=1)
     result = run_cli("corpus", "make", "--hours", "0.012", "--out", str(tmp_path / "b"), "--seed", "9", "--jobs", "2")
     assert result.returncode == 0, result.stderr
     assert "min per corpus hour" in result.stdout and "load average" in result.stdout
@@ -146,7 +146,9 @@ def test_the_recorded_style_and_seed_remake_the_teachers_take(tmp_path: Path) ->
 
     from convodrive.audio.source import DyadicAudio
 
-    make_corpus(0.006, tmp_path / "c", seed=1, jobs=1)  # one Italian conversation: no phone decoder
+    make_corpus(
+        0.006, tmp_path / "c", ProceduralGenerator, seed=1, jobs=1
+    )  # one Italian conversation: no phone decoder
     corpus = Corpus.open(tmp_path / "c")
     conv = corpus.conversations[0]
     assert conv.metadata["language"] == "it" and conv.metadata["style"]["phones"] is False

@@ -1,0 +1,397 @@
+"""``a2p``: audio2photoreal's face and body diffusion with guide poses, streaming in ONNX Runtime + NumPy.
+
+Each window of audio becomes motion in this order (graphs of ``convodrive.training.recipes.a2p_export``):
+
+1. ``lip`` on both voices, then with the channels swapped: self's mouth (a condition of the face)
+   and the voice activity of self and of the partner;
+2. the face: ``face_memory`` once (the conditional and, for DDIM with guidance, the
+   unconditional rows in one batch), then a sampling loop in NumPy (``convodrive.neural.diffusion``)
+   around ``face_step``: the distilled consistency student in a few steps (guidance built in), or
+   the teacher by DDIM with any step count and classifier-free guidance, both halves one batch;
+3. the guide poses: for every second whose audio has been heard (up to half a second past its
+   pose frame), ``guide_audio`` embeds its audio, ``guide_step`` samples its residual-VQ codes
+   one by one with nucleus sampling and a KV cache that carries on across windows
+   (``convodrive.neural.autoregressive``), and ``vq_decoder`` turns codes into 1 fps poses;
+4. the body, as the face, conditioned on the audio and the guide poses near the window.
+
+Windows overlap by ``context`` frames: each continues the previous one's last frames, which its
+networks see and its samplers pin (continuation by inpainting), so a stream of any length is one
+motion. K takes (``--samples K``) are the batch of the same calls. ``file`` mode uses the model's
+long windows, ``live`` mode 2 s windows that advance 12 frames, so a frame waits for 0.4 s of
+audio. The per-stream state (audio of the seconds not yet guided, the guide's cache and codes,
+the poses near the next window) has a fixed size, so memory stays constant however long the stream.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from convodrive.generators.learned import LearnedGenerator, LearnedOptions
+from convodrive.motion import representation as rep
+from convodrive.neural.autoregressive import KVCache, sample_tokens
+from convodrive.neural.diffusion import consistency_sample, cosine_schedule, ddim_sample, guided, noise_like
+from convodrive.neural.windows import WindowPlan
+from convodrive.plugins.options import option
+from convodrive.plumbing.errors import InputFileError, UserError
+
+FPS = 30
+GUIDE_REACH = 15
+"""A guide pose is sampled once the audio half a second past its frame has been heard."""
+LIVE = (60, 48)
+"""Window and context frames of ``live`` mode: a 12-frame hop."""
+FILE_CONTEXT = 30
+DISTILLED_STEPS = 4
+DDIM_STEPS = 10
+"""The body's DDIM steps: 20 moved its scores on the test split within the draws' noise."""
+DDIM_GUIDANCE_BODY = 3.0
+"""The body's guidance with DDIM, on the audio alone: on the test split it moves the head 1.9 times
+as fast while talking as while listening (1.5 unguided) for FD_g body 12.9 (12.9) and FD_k 0.058
+(0.068). Guiding on the guide poses too, as the paper does, doubled FD_g body at a scale of 2."""
+DDIM_FACE_STEPS = {"file": 50, "live": 20}
+"""The face's DDIM steps by mode. The face keeps improving with steps (FD_g face on the test split
+9.6 at 1 distilled step, 6.4 at 10, 4.4 at 20, 2.9 at 50); live mode stops at 20 to keep its
+latency (look-ahead plus a window's compute) under 0.5 s on 2 cores."""
+FACE = rep.GROUPS["face"]
+BODY = rep.GROUPS["body"]
+VAD = rep.GROUPS["vad"]
+GRAPHS = ("lip", "face_memory", "face_step", "body_memory", "body_step", "guide_audio", "guide_step", "vq_decoder")
+STUDENT_GRAPHS = ("face_student_memory", "face_student_step", "body_student_memory", "body_student_step")
+
+
+@dataclasses.dataclass(frozen=True)
+class A2POptions(LearnedOptions):
+    mode: str = option(
+        "file",
+        choices=("file", "live"),
+        help="file: the model's long windows; live: 2 s windows advancing 0.4 s (0.4 s look-ahead)",
+    )
+    sampler: str = option(
+        "ddim",
+        choices=("distilled", "ddim"),
+        help="ddim: the teachers with classifier-free guidance; distilled: the consistency students (guidance built in, one call a step, faster, coarser)",
+    )
+    steps: int = option(
+        0, low=0, high=1000, help=f"denoising steps of the body; 0: {DDIM_STEPS} with ddim, {DISTILLED_STEPS} distilled"
+    )
+    eta: float = option(
+        0.0, low=0.0, high=1.0, help="ddim's fresh noise at each step (0: deterministic DDIM, 1: as DDPM)"
+    )
+    face_steps: int = option(
+        0,
+        low=0,
+        high=1000,
+        help=f"the face's denoising steps; 0: with ddim {DDIM_FACE_STEPS['file']} ({DDIM_FACE_STEPS['live']} in live mode, for its latency), distilled the model's own (model.json's face_student_steps)",
+    )
+    guidance_face: float = option(2.0, low=1.0, high=20.0, help="classifier-free guidance scale of the face (1: none)")
+    guidance_body: float = option(
+        0.0,
+        low=0.0,
+        high=20.0,
+        help=f"classifier-free guidance scale of the body (1: none); 0: {DDIM_GUIDANCE_BODY:g} with ddim, 1 distilled",
+    )
+    guidance_body_on: str = option(
+        "audio",
+        choices=("audio", "all"),
+        help="with ddim, what the body's guidance amplifies: audio (the unconditional pass keeps the guide poses) or all (it drops them too, as the paper; the students learned this one)",
+    )
+    top_p: float = option(
+        1.0,
+        low=0.01,
+        high=1.0,
+        help="nucleus of the guide-pose codes (lower: safer poses, less varied; the reference's 0.94 "
+        "cost the shipped model 1 to 1.6 of FD_g body, its model card says)",
+    )
+    speaker: str = option("", help="speaker style the model learned (its model card lists them); empty: the first")
+
+
+@dataclasses.dataclass
+class _Stream:
+    """What a stream carries from window to window (all of a fixed size)."""
+
+    cache: KVCache
+    index: int = 0
+    audio: np.ndarray | None = None
+    """Log-mel (frames, 2, bands) from frame ``audio_start``: what the guide has still to hear."""
+    audio_start: int = 0
+    next_second: int = 0
+    """The first second whose guide pose is not sampled yet."""
+    embeddings: list[np.ndarray] = dataclasses.field(default_factory=list)
+    """Audio embeddings (1, width) of the seconds before ``next_second`` the guide still hears."""
+    codes: np.ndarray | None = None
+    """(K, seconds, levels) codes of the seconds before ``next_second`` the VQ decoder still reads."""
+    poses: dict[int, np.ndarray] = dataclasses.field(default_factory=dict)
+    """Guide poses (K, body dims) by second, those a later window may still use."""
+
+
+class A2PGenerator(LearnedGenerator):
+    name = "a2p"
+    description = (
+        "audio2photoreal: face diffusion with a lip regressor, body diffusion guided by 1 fps VQ poses "
+        "(learned, ONNX Runtime, distilled)"
+    )
+    Options: ClassVar[type[LearnedOptions]] = A2POptions
+    model_kind = "a2p"
+    shipped_model: ClassVar[Path | None] = Path(__file__).with_name("model")
+
+    options: A2POptions
+
+    def __init__(self, options: A2POptions | Mapping[str, Any] | None = None) -> None:
+        super().__init__(options)
+        wanted = GRAPHS + (STUDENT_GRAPHS if self.options.sampler == "distilled" else ())
+        missing = [g for g in wanted if g not in self.folder.graphs]
+        if missing:
+            stage = self.folder.spec.get("stage")
+            raise InputFileError(
+                self.folder.path,
+                f"holds a '{stage}' stage export without {', '.join(missing)}: export the distill stage",
+            )
+        arch = self.folder.spec["architecture"]
+        self.arch = arch
+        self.levels, self.span = int(arch["vq_levels"]), int(arch["guide_audio_span"])
+        self.band, self.skip = int(arch["guide_band"]), int(arch["distill_skip"])
+        self.alpha_bar = cosine_schedule(int(arch["diffusion_steps"]))
+        speakers = list(self.folder.spec["features"].get("speakers", []))
+        wanted_speaker = self.options.speaker or (speakers[0] if speakers else "")
+        if wanted_speaker not in speakers:
+            raise UserError(
+                f"generator a2p: speaker '{wanted_speaker}' is not one the model learned ({', '.join(speakers)})"
+            )
+        self.speaker = np.array([speakers.index(wanted_speaker)], np.int64)
+        distilled = self.options.sampler == "distilled"
+        self.steps = self.options.steps or (DISTILLED_STEPS if distilled else DDIM_STEPS)
+        self.guidance_body = self.options.guidance_body or (1.0 if distilled else DDIM_GUIDANCE_BODY)
+        self.body_unconditional = np.array([0.0, float(self.options.guidance_body_on == "audio")], np.float32)
+        limit = int(arch["diffusion_steps"]) // self.skip if distilled else int(arch["diffusion_steps"])
+        own_face_steps = int(arch.get("face_student_steps", 0)) if distilled else DDIM_FACE_STEPS[self.options.mode]
+        self.face_steps = self.options.face_steps or own_face_steps or self.steps
+        for name, value in (("steps", self.steps), ("face_steps", self.face_steps)):
+            if value > limit:
+                raise UserError(
+                    f"generator a2p: {name} must be at most {limit} with the {self.options.sampler} sampler"
+                )
+        prefix = "_student" if distilled else ""
+        self.lip = self.graph("lip")
+        self.face_memory, self.face_step = self.graph(f"face{prefix}_memory"), self.graph(f"face{prefix}_step")
+        self.body_memory, self.body_step = self.graph(f"body{prefix}_memory"), self.graph(f"body{prefix}_step")
+        self.guide_audio, self.guide_step = self.graph("guide_audio"), self.graph("guide_step")
+        self.vq_decoder = self.graph("vq_decoder")
+        silence = np.repeat(self._silence[None, None, None], FPS, axis=2).astype(np.float32)
+        self.silent_second = self.guide_audio(chunks=silence)["audio"][0, 0]
+        self.windows = 0
+
+    def window_plan(self) -> WindowPlan:
+        if self.options.mode == "live":
+            return WindowPlan(*LIVE)
+        return WindowPlan(int(self.folder.spec["architecture"]["window"]), FILE_CONTEXT)
+
+    def stream_state(self, takes: int) -> _Stream:
+        heads, width = int(self.arch["guide_heads"]), int(self.arch["guide_width"])
+        cache = KVCache.empty(
+            int(self.arch["guide_layers"]), takes, heads, width // heads, self.band, int(self.arch["vq_codes"])
+        )
+        return _Stream(cache, embeddings=[self.silent_second] * (self.span - 1))
+
+    # -- one window --------------------------------------------------------------------------------
+    def run_window(
+        self, audio: np.ndarray, context: np.ndarray | None, rngs: Sequence[np.random.Generator], state: Any = None
+    ) -> np.ndarray:
+        assert isinstance(state, _Stream)
+        takes, window = len(rngs), len(audio)
+        start = self.plan.start(state.index)
+        audio = audio.astype(np.float32)
+        lip = self.lip(audio=np.stack([audio, audio[:, ::-1]]))["lip"]
+        out = np.zeros((takes, window, rep.FEATURE_DIM), np.float32)
+        out[..., VAD.start] = lip[0, :, -1]
+        out[..., VAD.start + 1] = lip[1, :, -1]
+        conditional = {"audio": audio[None], "lip": lip[:1]}
+        out[..., FACE] = self._sample(
+            self.face_memory,
+            self.face_step,
+            conditional,
+            False,
+            FACE,
+            context,
+            rngs,
+            self.options.guidance_face,
+            self.face_steps,
+            np.zeros(2, np.float32),
+        )
+        self._hear(state, audio, start)
+        self._guide(state, start + window, rngs)
+        guide, positions, valid = self._guide_near(state, start, window, takes)
+        conditional = {
+            "audio": np.repeat(audio[None], takes, axis=0),
+            "guide": guide,
+            "guide_positions": positions,
+            "guide_valid": valid,
+        }
+        out[..., BODY] = self._sample(
+            self.body_memory,
+            self.body_step,
+            conditional,
+            True,
+            BODY,
+            context,
+            rngs,
+            self.guidance_body,
+            self.steps,
+            self.body_unconditional,
+        )
+        state.index += 1
+        self.windows += 1
+        return out
+
+    def _sample(
+        self,
+        memory_graph: Any,
+        step_graph: Any,
+        conditions: dict[str, np.ndarray],
+        per_take: bool,
+        part: slice,
+        context: np.ndarray | None,
+        rngs: Sequence[np.random.Generator],
+        guidance: float,
+        steps: int,
+        unconditional: np.ndarray,
+    ) -> np.ndarray:
+        """(K, window, part dims) from one denoiser: its memory once, then the sampling loop.
+        ``conditions`` hold one row for all takes, or one per take (``per_take``); with guidance,
+        ``unconditional`` (2,) says which conditions the unconditional pass keeps (1) or drops (0)."""
+        takes = len(rngs)
+        window = conditions["audio"].shape[1]
+        dim = part.stop - part.start
+        rows = takes if per_take else 1
+        distilled = self.options.sampler == "distilled"
+        cfg = not distilled and guidance != 1.0
+        keep = np.ones((rows, 2), np.float32)
+        if cfg:
+            conditions = {k: np.concatenate([v, v]) for k, v in conditions.items()}
+            keep = np.concatenate([keep, np.broadcast_to(unconditional, keep.shape)])
+        speaker = np.repeat(self.speaker, len(keep))
+        memory = memory_graph(conditions, keep=keep, speaker=speaker)
+        if not per_take:  # one row per take, conditional rows first (the order ``guided`` batches)
+            memory = {k: _repeat_rows(v, takes, 1 if "keys" in k or "values" in k else 0) for k, v in memory.items()}
+        known = np.zeros((takes, window, dim), np.float32)
+        known_mask = np.zeros((takes, window, 1), np.float32)
+        if context is not None:
+            known[:, : context.shape[1]] = context[..., part]
+            known_mask[:, : context.shape[1]] = 1.0
+
+        def x0(x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+            times = len(x) // takes
+            feed = {
+                "noisy": x,
+                "step": steps,
+                "known": np.concatenate([known] * times),
+                "known_mask": np.concatenate([known_mask] * times),
+                **memory,
+            }
+            if distilled:
+                feed["guidance"] = np.full(len(x), guidance, np.float32)
+            return step_graph(feed)["x0"]
+
+        noise = noise_like(rngs, (window, dim))
+        if distilled:
+            return consistency_sample(x0, noise, steps, self.alpha_bar, self.skip, rngs, known, known_mask)
+        x0_fn = guided(x0, guidance) if cfg else x0
+        return ddim_sample(x0_fn, noise, steps, self.alpha_bar, known, known_mask, self.options.eta, rngs)
+
+    # -- guide poses -------------------------------------------------------------------------------
+    def _hear(self, state: _Stream, audio: np.ndarray, start: int) -> None:
+        """Keep the window's audio that the guide has still to hear."""
+        if state.audio is None:
+            state.audio, state.audio_start = audio, start
+        else:
+            end = state.audio_start + len(state.audio)
+            state.audio = np.concatenate([state.audio, audio[max(0, end - start) :]])
+        first = FPS * state.next_second - GUIDE_REACH
+        if first > state.audio_start:
+            state.audio = state.audio[first - state.audio_start :]
+            state.audio_start = first
+
+    def _chunk(self, state: _Stream, second: int) -> np.ndarray:
+        """The 30 log-mel frames of ``second``, centred on its pose frame (silence before the start)."""
+        assert state.audio is not None
+        first = FPS * second - GUIDE_REACH
+        frames = np.repeat(self._silence[None], FPS, axis=0)
+        lo = max(first, state.audio_start, 0)
+        frames[lo - first :] = state.audio[lo - state.audio_start : first + FPS - state.audio_start]
+        return frames
+
+    def _guide(self, state: _Stream, heard: int, rngs: Sequence[np.random.Generator]) -> None:
+        """Sample the guide poses of every second whose audio up to ``heard`` frames is in."""
+        seconds = list(range(state.next_second, (heard - GUIDE_REACH) // FPS + 1))
+        if not seconds:
+            return
+        chunks = np.stack([self._chunk(state, s) for s in seconds])[None]
+        embedded = self.guide_audio(chunks=chunks)["audio"][0]
+        takes = len(rngs)
+        new_codes = np.empty((takes, len(seconds), self.levels), np.int64)
+        for i in range(len(seconds)):
+            state.embeddings = (state.embeddings + [embedded[i]])[-self.span :]
+            step = self._guide_step(np.repeat(np.stack(state.embeddings)[None], takes, axis=0))
+            new_codes[:, i] = sample_tokens(step, state.cache, self.levels, self.options.top_p, rngs)
+            state.embeddings = state.embeddings[-(self.span - 1) :] if self.span > 1 else []
+        history = 0 if state.codes is None else state.codes.shape[1]
+        codes = new_codes if state.codes is None else np.concatenate([state.codes, new_codes], axis=1)
+        poses = self.vq_decoder(codes=codes)["poses"][:, history:]
+        for i, second in enumerate(seconds):
+            state.poses[second] = poses[:, i]
+        state.codes = codes[:, -7:]  # the VQ decoder's receptive field is 8 seconds
+        state.next_second = seconds[-1] + 1
+
+    def _guide_step(self, band: np.ndarray) -> Any:
+        """The guide's step function for tokens that hear ``band`` (K, span, width)."""
+        speaker = np.repeat(self.speaker, len(band))
+
+        def step(token: np.ndarray, position: np.ndarray, keys: np.ndarray, values: np.ndarray) -> tuple[Any, ...]:
+            out = self.guide_step(
+                token=token, position=position, audio=band, past_keys=keys, past_values=values, speaker=speaker
+            )
+            return out["logits"], out["keys"], out["values"]
+
+        return step
+
+    def _guide_near(
+        self, state: _Stream, start: int, window: int, takes: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The guide poses from a second before the window to its end, at frames relative to
+        its start (at least one row, marked invalid when there is none)."""
+        near = [s for s in sorted(state.poses) if start - FPS <= FPS * s < start + window]
+        for s in [s for s in state.poses if FPS * s < start - FPS]:
+            del state.poses[s]
+        dim = BODY.stop - BODY.start
+        if not near:
+            return (
+                np.zeros((takes, 1, dim), np.float32),
+                np.zeros((takes, 1), np.float32),
+                np.zeros((takes, 1), np.float32),
+            )
+        guide = np.stack([state.poses[s] for s in near], axis=1).astype(np.float32)
+        positions = np.tile(np.array([FPS * s - start for s in near], np.float32), (takes, 1))
+        return guide, positions, np.ones((takes, len(near)), np.float32)
+
+    def report(self) -> dict[str, Any]:
+        return {
+            "model": str(self.folder.path),
+            "mode": self.options.mode,
+            "sampler": self.options.sampler,
+            "steps": self.steps,
+            "face_steps": self.face_steps,
+            "guidance": {"face": self.options.guidance_face, "body": self.guidance_body},
+            "body_guidance_on": "all" if self.options.sampler == "distilled" else self.options.guidance_body_on,
+            "top_p": self.options.top_p,
+            "window": self.plan.window,
+            "context": self.plan.context,
+            "windows": self.windows,
+        }
+
+
+def _repeat_rows(array: np.ndarray, times: int, axis: int) -> np.ndarray:
+    """Each row of ``array`` along ``axis`` repeated ``times`` times in place (c, c, u, u)."""
+    return np.repeat(array, times, axis=axis)

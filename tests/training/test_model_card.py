@@ -1,0 +1,82 @@
+"""Model cards travel with the weights: they name the command and the corpus's recipe, never a folder
+of the machine that trained them."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from tests.conftest import REPO
+
+# A path from the root or a home folder, where a token starts: `/work/x`, (/tmp/x), ~/x, C:\x.
+MACHINE_PATH = re.compile(r"""(?:^|[\s`'"(=\[,])((?:~|/[\w.-]+)/[^\s`'")\],]*|[A-Za-z]:\\\S*)""", re.M)
+
+
+def machine_paths(text: str) -> list[str]:
+    return MACHINE_PATH.findall(text)
+
+
+def test_the_pattern_finds_machine_paths_and_leaves_figures_alone() -> None:
+    assert machine_paths("- corpus: `/work/corpus2h` (corpus2h)") == ["/work/corpus2h"]
+    assert machine_paths("run (/tmp/x/run) and ~/runs/a and C:\\data\\c") == ["/tmp/x/run", "~/runs/a", "C:\\data\\c"]
+    assert machine_paths("1/30 s, FD_g/Div_k, https://example.org/a, `scripts/train_a2p.sh corpus2h a2p`") == []
+
+
+def _shipped_cards() -> list[Path]:
+    cards = sorted(p for p in (REPO / "convodrive").rglob("*.md") if (p.parent / "model.json").is_file())
+    assert {p.parent.name for p in cards} >= {"model", "fgd_model"} and len(cards) >= 3, cards
+    return cards
+
+
+@pytest.mark.parametrize("card", _shipped_cards(), ids=lambda p: str(p.parent.relative_to(REPO)))
+def test_no_shipped_card_names_a_folder_of_the_machine_that_trained_it(card: Path) -> None:
+    text = card.read_text(encoding="utf-8")
+    assert machine_paths(text) == []
+    assert "- command: `convodrive train " in text and "- corpus: corpus2h, " in text
+
+
+@pytest.mark.torch
+@pytest.mark.parametrize(
+    "source, says",
+    [
+        (
+            {"kind": "made", "hours": 2.0, "seed": 0, "takes": 4, "generator": "procedural"},
+            "made by `convodrive corpus make --hours 2.0 --seed 0 --takes 4` (teacher: the procedural generator)",
+        ),
+        (
+            {"kind": "beat2", "from": "/home/someone/BEAT2", "speaker": "wayne", "mano": "/tmp/mano.npz"},
+            "imported by `convodrive corpus import beat2 SRC --speaker wayne --mano FILE`",
+        ),
+    ],
+)
+def test_export_writes_the_command_and_the_corpus_recipe_not_its_folder(source: dict, says: str) -> None:
+    from convodrive.training.export import model_card
+
+    corpus = {"path": "/work/corpus2h", "name": "corpus2h", "hours": 2.046, "conversations": 67, "source": source}
+    spec = SimpleNamespace(info={"corpus": corpus})
+    recipe = SimpleNamespace(name="fgd", card=lambda config, spec: "An FGD embedder.")
+    meta = {
+        "model": "fgd",
+        "preset": "small",
+        "stage": "main",
+        "training": {
+            "corpus": "/work/corpus2h",
+            "checkpoint": "/work/runs/fgd/checkpoints/step-00000010",
+            "steps": 10,
+            "train_config": {"batch_size": 4, "seed": 3},
+            "world_size": 1,
+            "commit": "abc",
+            "torch": "2.13.0",
+            "validation": {"loss": 0.5},
+        },
+        "graphs": {"encoder": {"file": "encoder.onnx"}},
+        "parity": {"tolerance": 1e-4, "max_abs_err": {"encoder": {"size=1": 1e-6}}},
+        "int8": None,
+    }
+    card = model_card(recipe, None, spec, meta)  # type: ignore[arg-type]
+    assert machine_paths(card) == []
+    assert "- command: `convodrive train fgd --corpus corpus2h --preset small --stage main --steps 10 --seed 3`" in card
+    assert f"- corpus: corpus2h, 2.046 h, 67 conversations; {says}" in card
