@@ -128,7 +128,9 @@ class ReachyMiniBackend(Backend):
         start = self.link.latest()
         assert start is not None
         if not self.limits.within(start, tolerance=1e-3):
-            self._event("outside_limits_at_open", "the head was outside the limits (asleep?); eased in from the nearest pose")
+            self._event(
+                "outside_limits_at_open", "the head was outside the limits (asleep?); eased in from the nearest pose"
+            )
         self._last = self.limits.clamp(start)
         self._ease(rp.neutral(), self.options.ease_s, "open")
 
