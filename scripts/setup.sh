@@ -18,6 +18,9 @@ apt_packages=(espeak-ng ffmpeg libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 l
 # their own PulseAudio servers, load the live page in headless Chromium, and check the exported
 # glTF with the Khronos validator (an npm package, run by node).
 [ "$dev" = 1 ] && apt_packages+=(xvfb pulseaudio pulseaudio-utils chromium)
+# Reachy Mini's daemon (the reachy_mini backend's tests): PyGObject and pycairo build from source
+# (cairo, girepository, pkg-config) and the daemon loads the GStreamer typelibs even with --no-media.
+[ "$dev" = 1 ] && apt_packages+=(libcairo2-dev libgirepository1.0-dev pkg-config gir1.2-gstreamer-1.0 gir1.2-gst-plugins-base-1.0)
 missing=()
 for pkg in "${apt_packages[@]}"; do
     dpkg -s "$pkg" >/dev/null 2>&1 || missing+=("$pkg")
@@ -67,6 +70,18 @@ if [ "$dev" = 1 ] && [ ! -d tools/node/node_modules/gltf-validator ]; then
         >"$pip_log" 2>&1; then
         grep -v '^npm warn' "$pip_log" >&2 || true
         echo "setup: npm install of gltf-validator failed (above)" >&2
+        exit 1
+    fi
+fi
+# Reachy Mini's daemon in a venv of its own: reachy-mini pins onnxruntime 1.27, mujoco 3.3 and
+# websockets < 16, which would downgrade ours; the backend only speaks its WebSocket. About 3 min
+# (PyGObject builds) and 407 MB.
+if [ "$dev" = 1 ] && ! .venv-reachy/bin/python -c "import reachy_mini" >/dev/null 2>&1; then
+    [ -x .venv-reachy/bin/python ] || "$python" -m venv .venv-reachy
+    if ! .venv-reachy/bin/python -m pip --disable-pip-version-check -q install "reachy-mini[mujoco]==1.13.0" \
+        >"$pip_log" 2>&1; then
+        grep -v '^WARNING: Location' "$pip_log" >&2 || true
+        echo "setup: pip install of Reachy Mini's daemon failed (above)" >&2
         exit 1
     fi
 fi

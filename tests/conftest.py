@@ -5,7 +5,7 @@ A core-only install (``pip install -e . pytest pytest-timeout hypothesis``) runs
 suite. A test that needs an extra or a system tool carries a marker named in ``NEEDS`` below (and
 registered in pyproject.toml: mujoco, gymnasium, gl, ffmpeg, hardware, pocketsphinx, espeak, xvfb,
 bvh_reader, gltf_reader, gltf_validator, import_linter, build_tools, onnxruntime, torch, matplotlib,
-transformers, live, pulseaudio, chromium); where the machine lacks it the test is
+transformers, live, reachy, pulseaudio, chromium); where the machine lacks it the test is
 skipped with the reason and what installs it. CI installs everything and sets
 ``CONVODRIVE_TESTS_NEED_ALL=1``, which turns such a skip into a failure.
 
@@ -57,6 +57,7 @@ NEEDS: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
     "matplotlib": (("matplotlib",), (), "pip install 'convodrive[eval]'"),
     "transformers": (("transformers",), (), "pip install 'convodrive[frontend]'"),
     "live": (("sounddevice", "websockets", "pythonosc"), (), "pip install 'convodrive[live]'"),
+    "reachy": (("websockets",), (), "pip install 'convodrive[reachy]'; the daemon: scripts/setup.sh --dev"),
     "pulseaudio": (
         ("sounddevice",),
         ("pulseaudio", "pactl", "paplay"),

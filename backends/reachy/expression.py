@@ -1,0 +1,64 @@
+"""The conversation's part of Reachy Mini's motion: where the body turns and how the antennas feel.
+
+The profile maps the face and the head (brows and jaw move the antennas); this adds what follows
+from who is talking, frame by frame from the motion's voice activity and conversation state:
+
+- attention: the body turns toward the partner while the partner speaks and back toward its
+  home yaw while self holds the turn (a first-order follow, so the turn is a glance, not a snap);
+- perk: when the partner starts talking the antennas rise toward upright, then settle;
+- droop: after a second of silence (nobody talking: self thinking, or waiting) they sink slowly,
+  and come back as soon as anyone speaks.
+"""
+
+from __future__ import annotations
+
+import math
+
+from convodrive.motion.channels import ConversationState
+from convodrive.motion.clip import MotionFrame
+
+ATTENTION_TAU_S = 0.6
+PERK_TAU_S = 0.8
+PERK_RAD = 0.6
+"""How far a perk brings the antennas toward upright (from their own pose)."""
+DROOP_AFTER_S = 1.0
+DROOP_RISE_S = 2.5
+DROOP_RAD = 0.8
+QUIET_BEFORE_ONSET_S = 0.4
+"""The partner must have been quiet this long for their voice to count as a start."""
+VOICE = 0.5
+
+
+class Expression:
+    """Stateful: feed it every frame in order with the frame's time step."""
+
+    def __init__(self, partner_yaw: float, home_yaw: float = 0.0) -> None:
+        self.partner_yaw = partner_yaw
+        self.home_yaw = home_yaw
+        self.reset()
+
+    def reset(self) -> None:
+        self.attention = 0.0
+        self.perk = 0.0
+        self.droop = 0.0
+        self._partner_quiet_s = math.inf
+        self._silent_s = 0.0
+
+    def step(self, motion: MotionFrame, dt: float) -> tuple[float, float]:
+        """Advance one frame: (body yaw to add, antenna magnitude to add: + droops, - perks)."""
+        state = ConversationState(int(motion.state))
+        partner = float(motion.vad[1]) >= VOICE or state in (ConversationState.LISTENING, ConversationState.OVERLAP)
+        speaking = float(motion.vad[0]) >= VOICE or state in (ConversationState.SPEAKING, ConversationState.OVERLAP)
+        if partner and self._partner_quiet_s >= QUIET_BEFORE_ONSET_S:
+            self.perk = 1.0
+        self._partner_quiet_s = 0.0 if partner else self._partner_quiet_s + dt
+        self._silent_s = 0.0 if partner or speaking else self._silent_s + dt
+
+        goal = 1.0 if partner else (0.0 if speaking else self.attention)
+        self.attention += (goal - self.attention) * (1.0 - math.exp(-dt / ATTENTION_TAU_S))
+        self.perk *= math.exp(-dt / PERK_TAU_S)
+        droop_goal = min(1.0, max(0.0, (self._silent_s - DROOP_AFTER_S) / DROOP_RISE_S))
+        rate = dt / DROOP_RISE_S if droop_goal > self.droop else dt / 0.3  # sinks slowly, recovers fast
+        self.droop += max(-rate, min(rate, droop_goal - self.droop))
+        body = self.home_yaw + self.attention * (self.partner_yaw - self.home_yaw)
+        return body, DROOP_RAD * self.droop - PERK_RAD * self.perk
