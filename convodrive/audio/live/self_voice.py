@@ -32,7 +32,7 @@ import soundfile as sf
 from convodrive.audio.live.ring import SampleRing
 from convodrive.audio.live.timeline import Timeline
 from convodrive.audio.resample import StreamResampler
-from convodrive.audio.source import ANALYSIS_RATE, probe_audio
+from convodrive.audio.source import ANALYSIS_RATE, AudioDecodeError, AudioSource, ChannelMap
 from convodrive.plumbing.errors import UserError
 
 READ_SECONDS = 0.02
@@ -77,17 +77,26 @@ class NoVoice(VoiceSource):
 
 
 class FileVoice(VoiceSource):
-    """A recorded voice (WAV, FLAC, OGG) at its own rate; channel 0 of a multi-channel file."""
+    """A recorded voice (WAV, FLAC, OGG) at its own rate; channel 0 of a multi-channel file.
+    Checked as a partner file is (``AudioSource``: NaN or infinite samples are refused); a file
+    that stops decoding part-way raises ``AudioDecodeError`` there."""
 
     def __init__(self, path: Path) -> None:
-        info = probe_audio(path)
+        info = AudioSource(path, ChannelMap(0, None)).info
+        self.path = path
         self.rate = info.sample_rate
         self.describe = str(path)
         self.duration = info.duration
         self._fh = sf.SoundFile(str(path))
+        self._read = 0
 
     def read(self, max_samples: int, timeout: float) -> np.ndarray | None:
-        data = self._fh.read(max(int(max_samples), 1), dtype="float32", always_2d=True)
+        try:
+            data = self._fh.read(max(int(max_samples), 1), dtype="float32", always_2d=True)
+        except (sf.LibsndfileError, RuntimeError) as exc:
+            detail = str(exc).split(":")[-1].strip().rstrip(".") or exc.__class__.__name__
+            raise AudioDecodeError(self.path, self._read / self.rate, detail) from None
+        self._read += len(data)
         return data[:, 0].copy() if len(data) else None
 
     def close(self) -> None:
