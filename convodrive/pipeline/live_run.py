@@ -9,6 +9,7 @@ producer thread, each backend in its own worker, so none of them can hold up the
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -22,7 +23,7 @@ from convodrive.audio.live.assembler import LiveAudio
 from convodrive.audio.live.capture import FileAsMicrophone, MicrophoneInput, NoPartner, PartnerInput, Recording
 from convodrive.audio.live.devices import find_device
 from convodrive.audio.live.playback import Playback
-from convodrive.audio.live.self_voice import NoVoice, SelfVoiceFeeder, VoiceSource, open_voice
+from convodrive.audio.live.self_voice import NoVoice, SelfVoiceFeeder, TcpVoice, VoiceSource, open_voice
 from convodrive.audio.live.timeline import Timeline
 from convodrive.audio.source import ANALYSIS_RATE, SUPPORTED_EXTENSIONS, AudioChunk
 from convodrive.eval.sync import LevelMeter, level_db, mouth_onsets, pair_onsets, speech_onsets
@@ -124,6 +125,12 @@ class LiveRun:
         """Open every device and socket before any backend, so a mistake costs nothing."""
         request = self.request
         self.voice = open_voice(request.self_voice, request.self_rate)
+        if isinstance(self.voice, TcpVoice) and self.voice.token is not None:
+            sys.stderr.write(
+                f"convodrive: --self {self.voice.describe}: a speaker must first send the line "
+                f"{self.voice.token}, then its PCM\n"
+            )
+            sys.stderr.flush()
         self.partner = self._open_partner(request.partner)
         rate = self.voice.rate
         ring = None

@@ -3,7 +3,9 @@
 ``--self`` names the source: a file (played at its own rate), ``-`` (raw PCM on stdin), or
 ``tcp://HOST:PORT`` (a local socket an agent's speech synthesiser connects to and writes raw PCM
 into; one speaker at a time, and the next may connect after one hangs up), or ``none``. Raw PCM is
-signed 16-bit little-endian mono at ``--self-rate``.
+signed 16-bit little-endian mono at ``--self-rate``. Off loopback the socket asks for a token
+(``tcp://HOST:PORT?token=T``, or a fresh one the run prints): a speaker first sends it as one
+line, then its PCM (``convodrive.plumbing.access``).
 
 ``SelfVoiceFeeder`` moves the voice into the playback ring and, at the same moment, into the
 analysis time line the generator reads, so the generator always sees the voice ``lead`` seconds
@@ -33,8 +35,11 @@ from convodrive.audio.live.ring import SampleRing
 from convodrive.audio.live.timeline import Timeline
 from convodrive.audio.resample import StreamResampler
 from convodrive.audio.source import ANALYSIS_RATE, AudioDecodeError, AudioSource, ChannelMap
+from convodrive.plumbing.access import token_for, token_matches, token_problem
 from convodrive.plumbing.errors import UserError
 
+TOKEN_SECONDS = 5.0
+"""A speaker off loopback has this long to send its token line before it is hung up on."""
 READ_SECONDS = 0.02
 """The most the feeder reads from a source at once."""
 POLL_SECONDS = 0.005
@@ -134,14 +139,16 @@ class StdinVoice(VoiceSource):
 
 
 class TcpVoice(VoiceSource):
-    """``--self tcp://HOST:PORT``: listens there; a speaker connects and writes raw PCM."""
+    """``--self tcp://HOST:PORT``: listens there; a speaker connects and writes raw PCM (after
+    its token line when ``token`` is set: always off loopback)."""
 
     finite = False
 
     def __init__(self, spec: str, rate: int) -> None:
         self.rate = rate
-        self.describe = spec
-        host, port = parse_tcp(spec)
+        host, port, given = parse_tcp(spec)
+        self.describe = spec.split("?", 1)[0]  # the token stays out of the report
+        self.token = token_for(host, given)
         self._server = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
         try:
             self._server.bind((host, port))
@@ -149,12 +156,17 @@ class TcpVoice(VoiceSource):
         except OSError as exc:
             self._server.close()
             problem = "the port is busy" if exc.errno in (98, 48) else exc.strerror or str(exc)
-            raise UserError(f"--self {spec}: cannot listen there ({problem})") from None
+            raise UserError(f"--self {self.describe}: cannot listen there ({problem})") from None
         self.port = self._server.getsockname()[1]
         self._conn: socket.socket | None = None
+        self._peer = ""
+        self._waiting_token: bytes | None = None
+        """What an unauthenticated speaker has sent so far (None once it is let in)."""
+        self._token_due = 0.0
         self._pcm = _PcmDecoder()
         self._events: list[str] = []
         self.connections = 0
+        self.refused = 0
 
     def read(self, max_samples: int, timeout: float) -> np.ndarray | None:
         if self._conn is None:
@@ -162,12 +174,17 @@ class TcpVoice(VoiceSource):
             if ready:
                 self._conn, peer = self._server.accept()
                 self._conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                self._peer = f"{peer[0]}:{peer[1]}"
                 self._pcm = _PcmDecoder()
-                self.connections += 1
-                self._events.append(f"speaker connected from {peer[0]}:{peer[1]}")
+                self._waiting_token = b"" if self.token is not None else None
+                self._token_due = time.monotonic() + TOKEN_SECONDS
+                if self._waiting_token is None:
+                    self._admit()
             return np.zeros(0, np.float32)
         ready, _, _ = select.select([self._conn], [], [], timeout)
         if not ready:
+            if self._waiting_token is not None and time.monotonic() > self._token_due:
+                self._hang_up(f"speaker from {self._peer} refused: no token in {TOKEN_SECONDS:g} s", refused=True)
             return np.zeros(0, np.float32)
         try:
             data = self._conn.recv(2 * int(max_samples))
@@ -175,14 +192,43 @@ class TcpVoice(VoiceSource):
             data = b""
             self._events.append(f"speaker connection failed ({exc.strerror or exc})")
         if not data:
-            self._conn.close()
-            self._conn = None
-            self._events.append("speaker hung up")
+            self._hang_up("speaker hung up", refused=self._waiting_token is not None)
             return np.zeros(0, np.float32)
+        if self._waiting_token is not None:
+            data = self._check_token(data)
         return self._pcm.decode(data)
 
+    def _check_token(self, data: bytes) -> bytes:
+        """Collect the speaker's first line; let it in when it is the token. What follows is PCM."""
+        assert self.token is not None and self._waiting_token is not None
+        line = self._waiting_token + data
+        if b"\n" not in line:
+            self._waiting_token = line
+            if len(line) > len(self.token) + 2:
+                self._hang_up(f"speaker from {self._peer} refused: wrong token", refused=True)
+            return b""
+        given, _, rest = line.partition(b"\n")
+        if not token_matches(given.rstrip(b"\r"), self.token):
+            self._hang_up(f"speaker from {self._peer} refused: wrong token", refused=True)
+            return b""
+        self._admit()
+        return rest
+
+    def _admit(self) -> None:
+        self._waiting_token = None
+        self.connections += 1
+        self._events.append(f"speaker connected from {self._peer}")
+
+    def _hang_up(self, event: str, refused: bool) -> None:
+        assert self._conn is not None
+        self._conn.close()
+        self._conn = None
+        self._waiting_token = None
+        self.refused += refused
+        self._events.append(event)
+
     def streaming(self) -> bool:
-        return self._conn is not None
+        return self._conn is not None and self._waiting_token is None
 
     def events(self) -> list[str]:
         out, self._events = self._events, []
@@ -194,15 +240,24 @@ class TcpVoice(VoiceSource):
         self._server.close()
 
 
-def parse_tcp(spec: str) -> tuple[str, int]:
+def parse_tcp(spec: str) -> tuple[str, int, str | None]:
+    """HOST, PORT and the token (``?token=T``; None when not given) of ``tcp://HOST:PORT``."""
     parsed = urllib.parse.urlsplit(spec)
     try:
         port = parsed.port
     except ValueError:
         port = None
-    if parsed.scheme != "tcp" or not parsed.hostname or port is None or parsed.path not in ("", "/"):
-        raise UserError(f"--self {spec}: expected tcp://HOST:PORT, such as tcp://127.0.0.1:5100")
-    return parsed.hostname, port
+    query = urllib.parse.parse_qs(parsed.query, keep_blank_values=True)
+    unknown = set(query) - {"token"}
+    if parsed.scheme != "tcp" or not parsed.hostname or port is None or parsed.path not in ("", "/") or unknown:
+        raise UserError(
+            f"--self {spec.split('?', 1)[0]}: expected tcp://HOST:PORT or tcp://HOST:PORT?token=T, such as tcp://127.0.0.1:5100"
+        )
+    token = query["token"][-1] if "token" in query else None
+    problem = token_problem(token) if token is not None else None
+    if problem is not None:
+        raise UserError(f"--self {spec.split('?', 1)[0]}: {problem}")
+    return parsed.hostname, port, token
 
 
 def open_voice(spec: str, rate: int) -> VoiceSource:
