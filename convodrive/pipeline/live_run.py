@@ -22,8 +22,9 @@ from convodrive.audio.live import capture
 from convodrive.audio.live.assembler import LiveAudio
 from convodrive.audio.live.capture import FileAsMicrophone, MicrophoneInput, NoPartner, PartnerInput, Recording
 from convodrive.audio.live.devices import find_device
+from convodrive.audio.live.feeder import SelfVoiceFeeder
 from convodrive.audio.live.playback import Playback
-from convodrive.audio.live.self_voice import NoVoice, SelfVoiceFeeder, TcpVoice, VoiceSource, open_voice
+from convodrive.audio.live.self_voice import NoVoice, TcpVoice, VoiceSource, open_voice
 from convodrive.audio.live.timeline import Timeline
 from convodrive.audio.source import ANALYSIS_RATE, SUPPORTED_EXTENSIONS, AudioChunk
 from convodrive.eval.sync import LevelMeter, level_db, mouth_onsets, pair_onsets, speech_onsets
