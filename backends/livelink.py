@@ -3,18 +3,18 @@
 Unreal's Live Link plugin (with the Live Link Face source) lists the sender as a subject by its
 ``subject`` name and drives a MetaHuman or any ARKit face rig with it: 52 blendshapes plus head
 and eye rotations in radians, one datagram a frame (``convodrive.motion.livelink.encode_packet``).
-UDP needs no connection, so a listener may come and go; sending never waits for one.
+UDP needs no connection, so a listener may come and go; sending never waits for one (a closed
+port is reported: ``convodrive.backends.net.UdpSender``).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import socket
 from collections.abc import Mapping
 from typing import Any
 
 from convodrive.backends.base import Backend, Session
-from convodrive.backends.net import open_udp
+from convodrive.backends.net import UdpSender
 from convodrive.motion.livelink import UDP_PORT, encode_packet, head_eye_rotations
 from convodrive.motion.targets import TargetFrame, TargetSpec
 from convodrive.plugins.options import PluginOptions, option
@@ -37,17 +37,14 @@ class LivelinkBackend(Backend):
 
     def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
         super().__init__(options)
-        self._socket: socket.socket | None = None
-        self._address: tuple[Any, ...] = ()
-        self.sent = 0
-        self.bytes = 0
+        self._udp: UdpSender | None = None
 
     def open(self, spec: TargetSpec, session: Session) -> None:
         super().open(spec, session)
-        self._socket, self._address = open_udp(self.name, self.options.host, self.options.port)
+        self._udp = UdpSender(self.name, self.options.host, self.options.port)
 
     def send(self, frame: TargetFrame) -> None:
-        assert self._socket is not None
+        assert self._udp is not None
         motion = frame.motion
         packet = encode_packet(
             self.options.device_id,
@@ -57,13 +54,11 @@ class LivelinkBackend(Backend):
             head_eye_rotations(motion.pose[None])[0],
             fps=int(round(self.session.fps if self.session else 30)),
         )
-        self._socket.sendto(packet, self._address)
-        self.sent += 1
-        self.bytes += len(packet)
+        self._udp.send(packet)
 
     def close(self) -> None:
-        if self._socket is not None:
-            self._socket.close()
+        if self._udp is not None:
+            self._udp.close()
 
     def report(self) -> dict[str, Any]:
-        return {"destination": f"{self.options.host}:{self.options.port}", "packets": self.sent, "bytes": self.bytes}
+        return self._udp.report("packets") if self._udp is not None else {}

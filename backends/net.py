@@ -1,4 +1,4 @@
-"""What the network backends (``livelink``, ``osc``, ``stream``) share: resolving where to send."""
+"""What the UDP backends (``livelink``, ``osc``) share: one socket to one receiver, and its counts."""
 
 from __future__ import annotations
 
@@ -8,10 +8,42 @@ from typing import Any
 from convodrive.plumbing.errors import UserError
 
 
-def open_udp(backend: str, host: str, port: int) -> tuple[socket.socket, tuple[Any, ...]]:
-    """A UDP socket and the resolved address to send to (an unknown host is a ``UserError``)."""
-    try:
-        family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
-    except socket.gaierror as exc:
-        raise UserError(f"backend {backend}: option 'host': cannot resolve {host!r} ({exc.strerror})") from None
-    return socket.socket(family, kind, proto), address
+class UdpSender:
+    """Datagrams to ``host:port``; an unknown host is a ``UserError`` naming the backend.
+
+    The socket is connected, so the system tells us when the receiver's port is closed (a refused
+    datagram comes back as ``ConnectionRefusedError`` on the next send). Each frame is still sent:
+    after a refusal the datagram goes out again at once, so a receiver that starts late gets it,
+    and ``send`` then raises, so the run counts a frame nobody was there to take as an error.
+    """
+
+    def __init__(self, backend: str, host: str, port: int) -> None:
+        try:
+            family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
+        except socket.gaierror as exc:
+            raise UserError(f"backend {backend}: option 'host': cannot resolve {host!r} ({exc.strerror})") from None
+        self.destination = f"{host}:{port}"
+        self._socket = socket.socket(family, kind, proto)
+        try:
+            self._socket.connect(address)
+        except OSError:
+            self._socket.close()
+            raise
+        self.sent = 0
+        self.bytes = 0
+
+    def send(self, packet: bytes) -> None:
+        try:
+            self._socket.send(packet)
+        except ConnectionRefusedError:  # the previous datagram was refused; this one was not sent
+            self._socket.send(packet)
+            raise ConnectionRefusedError(f"nothing listens at {self.destination} (the datagram was refused)") from None
+        self.sent += 1
+        self.bytes += len(packet)
+
+    def close(self) -> None:
+        self._socket.close()
+
+    def report(self, unit: str) -> dict[str, Any]:
+        """For the backend's report: where to, and how many datagrams (``unit``) and bytes went."""
+        return {"destination": self.destination, unit: self.sent, "bytes": self.bytes}

@@ -11,19 +11,22 @@ frame at once. VRChat listens for ``/avatar/parameters/<name>`` on port 9000:
 from __future__ import annotations
 
 import dataclasses
-import socket
+import re
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from convodrive.backends.base import Backend, Session
-from convodrive.backends.net import open_udp
+from convodrive.backends.net import UdpSender
 from convodrive.motion import rotations
 from convodrive.motion.channels import ARKIT_NAMES
 from convodrive.motion.skeleton import JOINT_NAMES
 from convodrive.motion.targets import TargetFrame, TargetSpec
 from convodrive.plugins.options import PluginOptions, option
+
+NAME = "{name}"
+"""The one placeholder of ``face_path`` and ``joint_path``: replaced as text, never a format string."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,6 +47,8 @@ class OscOptions(PluginOptions):
             value = getattr(self, key)
             if not value.startswith("/") or "{name}" not in value:
                 raise ValueError(f"option '{key}' must start with / and hold {{name}}, got {value!r}")
+            if re.search(r"[{}]", value.replace(NAME, "")):
+                raise ValueError(f"option '{key}': {{name}} is the only field a path may hold, got {value!r}")
         if not self.prefix.startswith("/"):
             raise ValueError(f"option 'prefix' must start with /, got {self.prefix!r}")
 
@@ -60,23 +65,17 @@ class OscBackend(Backend):
     def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
         super().__init__(options)
         o = self.options
-        self._face_addresses = [o.face_path.format(name=n) for n in ARKIT_NAMES]
-        self._joint_addresses = [o.joint_path.format(name=n) for n in JOINT_NAMES]
-        self._socket: socket.socket | None = None
-        self._address: tuple[Any, ...] = ()
-        self.sent = 0
-        self.bytes = 0
+        self._face_addresses = [o.face_path.replace(NAME, n) for n in ARKIT_NAMES]
+        self._joint_addresses = [o.joint_path.replace(NAME, n) for n in JOINT_NAMES]
+        self._udp: UdpSender | None = None
 
     def open(self, spec: TargetSpec, session: Session) -> None:
         super().open(spec, session)
-        self._socket, self._address = open_udp(self.name, self.options.host, self.options.port)
+        self._udp = UdpSender(self.name, self.options.host, self.options.port)
 
     def send(self, frame: TargetFrame) -> None:
-        assert self._socket is not None
-        packet = self.bundle(frame)
-        self._socket.sendto(packet, self._address)
-        self.sent += 1
-        self.bytes += len(packet)
+        assert self._udp is not None
+        self._udp.send(self.bundle(frame))
 
     def bundle(self, frame: TargetFrame) -> bytes:
         """One frame as one OSC bundle (timetag: immediately)."""
@@ -108,8 +107,8 @@ class OscBackend(Backend):
         return bundle.build().dgram
 
     def close(self) -> None:
-        if self._socket is not None:
-            self._socket.close()
+        if self._udp is not None:
+            self._udp.close()
 
     def report(self) -> dict[str, Any]:
-        return {"destination": f"{self.options.host}:{self.options.port}", "bundles": self.sent, "bytes": self.bytes}
+        return self._udp.report("bundles") if self._udp is not None else {}

@@ -13,18 +13,18 @@ A client first gets ``{"type": "hello", ...}`` naming the joints, the channels a
 In a live run frames go out when their sound leaves the speaker, so a page on the same machine
 moves with the voice it hears. The server binds 127.0.0.1 unless ``host`` says otherwise; off
 loopback it asks for a token (``token``, or a fresh one), which the page's URL carries (the page
-then keeps it in a cookie for its own requests). A slow client skips frames; nobody waits for it.
+then keeps it in a cookie for its own requests). A request whose ``Host`` is not the server's
+own name (DNS rebinding), or whose ``Origin`` is another site's (a page open in the same browser
+reading the motion), is refused (``convodrive.plumbing.access``). A slow client skips frames;
+nobody waits for it.
 """
 
 from __future__ import annotations
 
 import asyncio
 import dataclasses
-import hmac
 import http
-import ipaddress
 import json
-import secrets
 import sys
 import threading
 import urllib.parse
@@ -40,6 +40,7 @@ from convodrive.motion.channels import ARKIT_NAMES
 from convodrive.motion.skeleton import JOINT_NAMES
 from convodrive.motion.targets import TargetFrame, TargetSpec
 from convodrive.plugins.options import PluginOptions, option
+from convodrive.plumbing.access import host_allowed, token_for, token_matches, token_problem
 from convodrive.plumbing.errors import UserError
 
 HEADER_WORDS = 4
@@ -60,8 +61,9 @@ class StreamOptions(PluginOptions):
     )
 
     def __post_init__(self) -> None:
-        if self.token is not None and (len(self.token) < 8 or not self.token.isascii() or not self.token.isprintable()):
-            raise ValueError("option 'token' must be at least 8 printable ASCII characters")
+        problem = token_problem(self.token) if self.token is not None else None
+        if problem is not None:
+            raise ValueError(f"option 'token': {problem}")
 
 
 class StreamBackend(Backend):
@@ -81,7 +83,7 @@ class StreamBackend(Backend):
     def open(self, spec: TargetSpec, session: Session) -> None:
         super().open(spec, session)
         o = self.options
-        token = o.token if o.token is not None or _loopback(o.host) else secrets.token_urlsafe(16)
+        token = token_for(o.host, o.token)
         hello = {
             "type": "hello",
             "fps": session.fps,
@@ -117,15 +119,6 @@ class StreamBackend(Backend):
             "messages": self.server.messages,
             "skipped_for_slow_clients": self.server.skipped,
         }
-
-
-def _loopback(host: str) -> bool:
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 def _quaternions_xyzw(pose: np.ndarray) -> np.ndarray:
@@ -240,8 +233,14 @@ class StreamServer:
         """Serve the page and its files; let an authorised ``/ws`` through to the WebSocket."""
         url = urllib.parse.urlsplit(request.path)
         query = urllib.parse.parse_qs(url.query)
+        host = request.headers.get("Host", "")
+        if not host_allowed(host, self.host):
+            return _response(http.HTTPStatus.FORBIDDEN, b"this server answers to its own address only\n")
+        origin = request.headers.get("Origin")
+        if origin is not None and origin.lower() != f"http://{host}".lower():
+            return _response(http.HTTPStatus.FORBIDDEN, b"only the page this server serves may connect\n")
         given = (query.get("token") or [""])[0] or _cookie(request.headers.get("Cookie", ""), COOKIE)
-        if self.token is not None and not hmac.compare_digest(given.encode(), self.token.encode()):
+        if self.token is not None and not token_matches(given, self.token):
             return _response(http.HTTPStatus.FORBIDDEN, b"a token is needed: use the URL convodrive printed\n")
         if url.path == "/ws":
             return None

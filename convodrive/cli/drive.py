@@ -92,14 +92,14 @@ def print_result(result: DriveResult) -> None:
     log.info("run summary (report: %s)\n%s", result.report_path, summary, extra=FILE_ONLY)
 
 
-EXIT_HARDWARE_FAILED = 3
+EXIT_BACKEND_FAILED = 3
 
 
 def exit_code(result: DriveResult) -> int:
-    """The run's exit status, each non-zero one said in one line on stderr: 3 when hardware failed
-    (a servo head that never opened, failed, or whose torque-off went unconfirmed), 2 when the
-    input stopped the run part-way; else the shell's 128 + N when signal N stopped it (130 for
-    Ctrl-C, 143 for SIGTERM), else 0."""
+    """The run's exit status, each non-zero one said in one line on stderr: 3 when a body failed
+    (hardware: a servo head that never opened, failed, or whose torque-off went unconfirmed; or
+    every backend of the run, so nothing was driven), 2 when the input stopped the run part-way;
+    else the shell's 128 + N when signal N stopped it (130 for Ctrl-C, 143 for SIGTERM), else 0."""
     report = result.report
     code = 0
     if report.get("interrupted"):
@@ -111,8 +111,14 @@ def exit_code(result: DriveResult) -> int:
     failed = report.get("hardware_failed") or {}
     if failed:
         names = "; ".join(f"{name}: {reason}" for name, reason in failed.items())
-        _say(f"hardware failed ({names}); exit code {EXIT_HARDWARE_FAILED}")
-        code = EXIT_HARDWARE_FAILED
+        _say(f"hardware failed ({names}); exit code {EXIT_BACKEND_FAILED}")
+        code = EXIT_BACKEND_FAILED
+    elif report.get("every_backend_failed"):
+        from convodrive.scheduler.report import backend_state
+
+        names = "; ".join(f"{name}: {backend_state(entry)[1]}" for name, entry in report["backends"].items())
+        _say(f"every backend failed ({names}); exit code {EXIT_BACKEND_FAILED}")
+        code = EXIT_BACKEND_FAILED
     return code
 
 

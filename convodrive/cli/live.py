@@ -32,7 +32,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default="none",
         metavar="FILE|-|tcp://HOST:PORT|none",
         help="the robot's own voice: a file, raw PCM on stdin (-), or a socket an agent's speech "
-        "synthesiser connects to and writes into (default: none)",
+        "synthesiser connects to and writes into (off loopback it first sends a token line: "
+        "?token=T, or the one printed) (default: none)",
     )
     p.add_argument(
         "--play", default="default", metavar="DEVICE", help="where the self voice is played (default: default)"

@@ -7,7 +7,7 @@ import argparse
 import difflib
 
 from convodrive.plugins import BACKEND_GROUP, GENERATOR_GROUP, list_plugins, load_plugin, plugin_names
-from convodrive.plugins.options import describe_options
+from convodrive.plugins.option_help import describe_options
 from convodrive.plumbing.errors import UserError
 
 GROUPS = (("generators", GENERATOR_GROUP), ("backends", BACKEND_GROUP))

@@ -21,7 +21,8 @@ from convodrive import FPS
 from convodrive.backends.render import RenderOptions
 from convodrive.cli.progress import frame_progress
 from convodrive.motion.load import FORMATS
-from convodrive.plugins.options import add_option_arguments, merge_options, option_arguments
+from convodrive.plugins.option_help import add_option_arguments, option_arguments
+from convodrive.plugins.options import merge_options
 from convodrive.plumbing.errors import UserError
 
 NAMED_BY_OUT = ("filename", "contact_sheet")

@@ -25,13 +25,8 @@ from typing import Any
 
 from convodrive.backends.servo.servo_options import DynamixelOptions
 from convodrive.cli.options import number_in
-from convodrive.plugins.options import (
-    add_option_arguments,
-    check_options,
-    describe_options,
-    merge_options,
-    option_arguments,
-)
+from convodrive.plugins.option_help import add_option_arguments, describe_options, option_arguments
+from convodrive.plugins.options import check_options, merge_options
 from convodrive.plumbing.atomic import write_text_atomic
 from convodrive.plumbing.errors import InputFileError, UserError
 from convodrive.plumbing.safe_yaml import parse_scalar, parse_yaml

@@ -5,7 +5,8 @@ know which"); the CLI calls it and nothing but the CLI imports it.
 """
 
 from convodrive.pipeline.config import RunConfig, load_run_config
-from convodrive.pipeline.live import LiveRequest, live
+from convodrive.pipeline.live import live
+from convodrive.pipeline.live_run import LiveRequest
 from convodrive.pipeline.run import DEFAULT_GENERATOR, MAX_SAMPLES, DriveRequest, DriveResult, drive
 
 __all__ = [

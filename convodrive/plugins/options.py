@@ -22,7 +22,6 @@ Checks that involve several options live in the dataclass's ``__post_init__``, w
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import difflib
 import math
@@ -33,7 +32,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from convodrive.plumbing.errors import UserError
-from convodrive.plumbing.safe_yaml import number_text, parse_scalar
+from convodrive.plumbing.safe_yaml import number_text
 from convodrive.plumbing.text import clip_value
 
 T = TypeVar("T", bound="PluginOptions")
@@ -192,7 +191,7 @@ def _convert(value: Any, hint: Any, meta: Mapping[str, Any], prefix: str, path: 
                 return _convert(value, candidate, meta, prefix, path)
             except UserError:
                 continue
-        raise UserError(f"{label} must be {' or '.join(_type_name(a) for a in inner)}, got {clip_value(value)}")
+        raise UserError(f"{label} must be {' or '.join(type_name(a) for a in inner)}, got {clip_value(value)}")
     if isinstance(hint, type) and issubclass(hint, PluginOptions):
         return _build(hint, _check(hint, value, prefix, path), "", prefix, path)
     if hint is bool:
@@ -258,11 +257,11 @@ def _count(value: Sequence[Any] | Mapping[Any, Any], meta: Mapping[str, Any], la
 def _bounded(number: float, meta: Mapping[str, Any], label: str) -> Any:
     low, high = meta.get("low"), meta.get("high")
     if (low is not None and number < low) or (high is not None and number > high):
-        raise UserError(f"{label} must be {_range_text(low, high)}, got {clip_value(number)}")
+        raise UserError(f"{label} must be {range_text(low, high)}, got {clip_value(number)}")
     return _chosen(number, meta, label)
 
 
-def _range_text(low: float | None, high: float | None) -> str:
+def range_text(low: float | None, high: float | None) -> str:
     if low is not None and high is not None:
         return f"between {_number(low)} and {_number(high)}"
     return f"at least {_number(low)}" if low is not None else f"at most {_number(high)}"
@@ -284,158 +283,24 @@ def _chosen(value: Any, meta: Mapping[str, Any], label: str) -> Any:
     return value
 
 
-# ------------------------------------------------------------------------------------ describing
-@dataclasses.dataclass(frozen=True)
-class OptionInfo:
-    """What ``convodrive plugins NAME`` prints for one option; nested settings are listed as
-    ``joints.NAME.id``."""
-
-    name: str
-    type: str
-    default: Any
-    help: str
-    low: float | None = None
-    high: float | None = None
-    choices: tuple[Any, ...] | None = None
-
-    @property
-    def required(self) -> bool:
-        return self.default is REQUIRED
-
-    def bounds(self) -> str:
-        if self.choices:
-            return "one of " + ", ".join(_show(c) for c in self.choices)
-        if self.low is not None or self.high is not None:
-            return _range_text(self.low, self.high).replace("between", "from").replace(" and ", " to ")
-        return ""
-
-    def kind(self) -> str:
-        """``int, from 16 to 4096``: the type and what it admits."""
-        bounds = self.bounds()
-        return f"{self.type}, {bounds}" if bounds else self.type
-
-    def default_text(self) -> str:
-        return "required" if self.required else _show(self.default)
-
-    def describe(self) -> str:
-        default = "required" if self.required else f"default {self.default_text()}"
-        return f"{self.name} ({self.kind()}; {default}): {self.help}"
-
-
-def _show(value: Any) -> str:
-    if value is None:
-        return "null"
-    if value == "":
-        return '""'
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, Path):
-        return str(value)
-    if isinstance(value, float) and math.isinf(value):
-        return "inf" if value > 0 else "-inf"
-    if isinstance(value, (dict, list)) and not value:
-        return "{}" if isinstance(value, dict) else "[]"
-    return str(value) if isinstance(value, (int, float, str)) else clip_value(value)
-
-
-def describe_options(cls: type[PluginOptions], prefix: str = "") -> list[OptionInfo]:
-    hints = typing.get_type_hints(cls)
-    infos = []
-    for f in dataclasses.fields(cls):
-        if f.default is not dataclasses.MISSING:
-            default = f.default
-        elif f.default_factory is not dataclasses.MISSING:
-            default = f.default_factory()
-        else:
-            default = REQUIRED
-        m = f.metadata
-        name = prefix + f.name
-        hint = hints[f.name]
-        infos.append(
-            OptionInfo(
-                name, _type_name(hint), default, m.get("help", ""), m.get("low"), m.get("high"), m.get("choices")
-            )
-        )
-        nested = _nested(hint)
-        if nested is not None:
-            infos += describe_options(nested, f"{name}.NAME." if _is_mapping(hint) else f"{name}.")
-    return infos
-
-
-def _nested(hint: Any) -> type[PluginOptions] | None:
-    """The options dataclass inside ``hint`` (``X``, ``X | None``, ``dict[str, X]``), if any."""
-    for candidate in (hint, *typing.get_args(hint)):
-        if isinstance(candidate, type) and issubclass(candidate, PluginOptions):
-            return candidate
-        if typing.get_origin(candidate) is dict:
-            return _nested(typing.get_args(candidate)[1])
-    return None
-
-
-def _is_mapping(hint: Any) -> bool:
-    return any(typing.get_origin(c) is dict for c in (hint, *typing.get_args(hint)))
-
-
-def _type_name(hint: Any) -> str:
+def type_name(hint: Any) -> str:
+    """How a user reads an option's type (``int``, ``list of text``, ``float or null``)."""
     origin = typing.get_origin(hint)
     if origin in (typing.Union, types.UnionType):
-        names = [_type_name(a) for a in typing.get_args(hint) if a is not type(None)]
+        names = [type_name(a) for a in typing.get_args(hint) if a is not type(None)]
         return " or ".join(names) + (" or null" if type(None) in typing.get_args(hint) else "")
     if isinstance(hint, type) and issubclass(hint, PluginOptions):
         return "settings"
     simple = {bool: "bool", int: "int", float: "float", str: "text", Path: "path", list: "list", dict: "mapping"}
     if origin is dict:
-        return f"mapping of name to {_type_name(typing.get_args(hint)[1])}"
+        return f"mapping of name to {type_name(typing.get_args(hint)[1])}"
     if origin in (list, tuple) and typing.get_args(hint):
-        return f"list of {_type_name(typing.get_args(hint)[0])}"
+        return f"list of {type_name(typing.get_args(hint)[0])}"
     if hint in simple:
         return simple[hint]
     if origin in simple:
         return simple[origin]
     return getattr(hint, "__name__", str(hint))
-
-
-# ------------------------------------------------------------------------------------ flags
-def add_option_arguments(
-    parser: argparse.ArgumentParser,
-    cls: type[PluginOptions],
-    names: Sequence[str],
-    *,
-    show_defaults: bool = False,
-) -> None:
-    """Command-line flags (``--latency-ms``) for some of a plugin's options, with the declared help.
-    Their values stay unset unless given, so a profile's values apply (say the defaults in the help
-    with ``show_defaults`` where nothing else does); read them with ``option_arguments`` and check
-    them as a layer of ``merge_options`` or ``check_options``."""
-    infos = {i.name: i for i in describe_options(cls)}
-    hints = typing.get_type_hints(cls)
-    for name in names:
-        info = infos[name]
-        default = f"; default {info.default_text()}" if show_defaults else ""
-        text = f"{info.help} ({info.kind()}{default})"
-        flag = "--" + name.replace("_", "-")
-        if info.type == "bool":
-            parser.add_argument(flag, dest=name, default=None, action=argparse.BooleanOptionalAction, help=text)
-        else:
-            parser.add_argument(
-                flag, dest=name, default=None, metavar=name.upper(), type=_flag_reader(hints[name]), help=text
-            )
-
-
-def _flag_reader(hint: Any) -> Any:
-    """A flag's text as its option takes it: verbatim for text and paths (``--labels no`` is the
-    caption "no", not false), read as YAML otherwise (numbers, booleans, lists)."""
-    kinds = (
-        set(typing.get_args(hint)) - {type(None)}
-        if typing.get_origin(hint) in (typing.Union, types.UnionType)
-        else {hint}
-    )
-    return str if kinds in ({str}, {Path}) else parse_scalar
-
-
-def option_arguments(args: argparse.Namespace, names: Sequence[str]) -> dict[str, Any]:
-    """The flags of ``add_option_arguments`` that were given, as a layer for ``merge_options``."""
-    return {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
 
 
 # ------------------------------------------------------------------------------------ shared checks

@@ -85,11 +85,12 @@ def build_report(
         }
     for name, problem in (failed_at_open or {}).items():
         backends[name] = {"failed": True, "open_error": problem, "frames_sent": 0, "frames_dropped": result.frames}
-    hardware_failed = {}
-    for name in hardware:
-        state, reason = backend_state(backends.get(name, {}))
+    failed = {}
+    for name, entry in backends.items():
+        state, reason = backend_state(entry)
         if state == "FAILED":
-            hardware_failed[name] = reason
+            failed[name] = reason
+    hardware_failed = {name: failed[name] for name in hardware if name in failed}
     gen_rtf = result.audio_seconds / result.generator_seconds if result.generator_seconds > 0 else None
     report = {
         "convodrive_version": __version__,
@@ -113,6 +114,7 @@ def build_report(
         "retarget_ms_per_frame": round(1000 * result.retarget_seconds / result.frames, 3) if result.frames else None,
         "backends": backends,
         "hardware_failed": hardware_failed,
+        "every_backend_failed": bool(backends) and len(failed) == len(backends),
     }
     report.update(context)
     return report
@@ -152,13 +154,19 @@ def summarize(report: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+FAILED_RATIO = 0.9
+"""A backend whose sends failed this often (or that never sent a frame) failed, however short the run."""
+DEGRADED_RATIO = 0.1
+"""One whose sends failed this often is degraded."""
+
+
 def backend_state(entry: dict[str, Any]) -> tuple[str, str]:
-    """("ok" | "degraded" | "FAILED", why) for one backend of a report: the worse of its health
-    and its final report, and a reason a user can act on (no display, which servo was lost)."""
+    """("ok" | "degraded" | "FAILED", why) for one backend of a report: the worst of its health,
+    its final report and the share of its sends that failed, and a reason a user can act on (no
+    display, which servo was lost)."""
     health = entry.get("health") or {}
     final = entry.get("report") or {}
     statuses = {str(health.get("status", "ok")), str(final.get("status", "ok"))}
-    failed = bool(entry.get("failed")) or "failed" in statuses
     reason = (
         entry.get("open_error")
         or (entry.get("last_error") if entry.get("failed") else "")
@@ -169,10 +177,16 @@ def backend_state(entry: dict[str, Any]) -> tuple[str, str]:
         or entry.get("last_error")
         or ""
     )
-    if failed:
+    if bool(entry.get("failed")) or "failed" in statuses:
         return "FAILED", str(reason)
+    errors, sent = int(entry.get("errors") or 0), int(entry.get("frames_sent") or 0)
+    ratio = errors / (errors + sent) if errors else 0.0
+    if ratio >= FAILED_RATIO or (errors and not sent):
+        return "FAILED", f"{errors} of {errors + sent} sends failed: {entry.get('last_error')}"
     if "degraded" in statuses:
         return "degraded", str(reason or "no reason given")
+    if ratio >= DEGRADED_RATIO:
+        return "degraded", f"{errors} of {errors + sent} sends failed: {entry.get('last_error')}"
     return "ok", str(reason)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import struct
 from pathlib import Path
 
@@ -11,7 +12,7 @@ import pytest
 from convodrive.motion.channels import ARKIT_NAMES, BLENDSHAPE_INDEX
 from convodrive.motion.livelink import head_eye_rotations
 from convodrive.motion.npz import load_clip
-from tests.backends.udp_listener import UdpListener
+from tests.backends.udp_listener import UdpListener, closed_port
 from tests.conftest import run_cli
 
 pytestmark = [pytest.mark.espeak]
@@ -73,3 +74,21 @@ def test_unknown_host_is_one_line(tmp_path: Path, talk: Path) -> None:
     assert done.returncode == 2
     assert len(done.stderr.strip().splitlines()) == 1, done.stderr
     assert "livelink" in done.stderr and "no.such.host.invalid" in done.stderr
+
+
+def test_a_receiver_that_is_not_there_fails_the_run(tmp_path: Path, talk: Path) -> None:
+    """Unreal not listening on loopback: each packet after the first is refused, the report says
+    livelink FAILED, and with no other body the run exits 3; beside a body that works, it exits 0."""
+    port = closed_port()
+    done = run_cli(
+        "drive", str(talk), "--backend", "livelink", "--out", str(tmp_path / "a"), "-B", f"livelink.port={port}"
+    )
+    assert done.returncode == 3, done.stderr
+    report = json.loads((tmp_path / "a" / "run_report.json").read_text())
+    assert report["backends"]["livelink"]["errors"] >= 30
+    assert "livelink   FAILED" in (tmp_path / "a" / "run_report.txt").read_text()
+    done = run_cli(
+        "drive", str(talk), "--backend", "livelink,record", "--out", str(tmp_path / "b"), "-B", f"livelink.port={port}"
+    )
+    assert done.returncode == 0, done.stderr
+    assert "livelink   FAILED" in (tmp_path / "b" / "run_report.txt").read_text()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import struct
 from pathlib import Path
 
@@ -12,7 +13,7 @@ from convodrive.motion import rotations
 from convodrive.motion.channels import ARKIT_NAMES
 from convodrive.motion.npz import load_clip
 from convodrive.motion.skeleton import JOINT_NAMES
-from tests.backends.udp_listener import UdpListener
+from tests.backends.udp_listener import UdpListener, closed_port
 from tests.conftest import run_cli
 
 pytestmark = [pytest.mark.live, pytest.mark.espeak]
@@ -97,3 +98,25 @@ def test_a_path_without_a_name_is_one_line(tmp_path: Path, talk: Path) -> None:
     done = run_cli("drive", str(talk), "--backend", "osc", "--out", str(tmp_path), "-B", "osc.face_path=/face")
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
     assert "face_path" in done.stderr
+
+
+@pytest.mark.parametrize("path", ["/x/{name}/{0}", "/x/{name.__class__.__mro__}", "/x/{name}{", "/x/{{name}}"])
+def test_a_path_holds_no_field_but_name(tmp_path: Path, talk: Path, path: str) -> None:
+    """Paths are not format strings: a positional field, an attribute lookup or a stray brace is
+    refused when the options are read, in one line."""
+    done = run_cli("drive", str(talk), "--backend", "osc", "--out", str(tmp_path), "-B", f"osc.joint_path={path}")
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert "joint_path" in done.stderr and path in done.stderr
+
+
+def test_a_receiver_that_is_not_there_fails_the_run(tmp_path: Path, talk: Path) -> None:
+    """Every bundle to a closed loopback port is refused: the short run reports osc FAILED and,
+    osc being its only body, exits 3."""
+    done = run_cli("drive", str(talk), "--backend", "osc", "--out", str(tmp_path), "-B", f"osc.port={closed_port()}")
+    assert done.returncode == 3, done.stderr
+    assert "every backend failed (osc:" in done.stderr.strip().splitlines()[-1]
+    report = json.loads((tmp_path / "run_report.json").read_text())
+    assert report["every_backend_failed"] is True
+    entry = report["backends"]["osc"]
+    assert entry["frames_sent"] <= 1 and entry["errors"] >= 30, "each bundle after the first is refused"
+    assert "osc        FAILED" in (tmp_path / "run_report.txt").read_text()

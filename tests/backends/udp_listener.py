@@ -29,3 +29,10 @@ class UdpListener:
         self._thread.join()
         self.sock.close()
         return self.datagrams
+
+
+def closed_port() -> int:
+    """A loopback UDP port nothing listens on (it was free a moment ago)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])

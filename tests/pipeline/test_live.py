@@ -114,14 +114,21 @@ def _busy_port() -> tuple[socket.socket, int]:
         (["--self", "tcp://127.0.0.1"], "expected tcp://HOST:PORT"),
         (["--backend", "stream", "-B", "stream.port={busy}"], "backend stream: cannot listen on 127.0.0.1:"),
         (["--seconds", "-1"], "--seconds must be positive"),
+        (["--seconds", "nan"], "--seconds must be positive and finite, got nan"),
+        (["--seconds", "inf"], "--seconds must be positive and finite, got inf"),
+        (["--self", "{nan}"], "nan.wav: audio holds NaN or infinite samples"),
+        (["--partner", "{nan}"], "nan.wav: audio holds NaN or infinite samples"),
         (["--backend", "nosuch"], "nosuch"),
     ],
 )
 def test_bad_input_is_one_line(pulse, tmp_path: Path, args: list[str], problem: str) -> None:
     self_wav, _ = dialogue_halves(tmp_path / "in", seconds=2.0)
+    voice, rate = sf.read(self_wav, dtype="float32")
+    voice[rate // 2] = np.nan  # a self voice and a partner with NaN are refused alike, naming the file
+    sf.write(tmp_path / "nan.wav", voice, rate, subtype="FLOAT")
     held, busy = _busy_port()
     try:
-        args = [a.format(self=self_wav, dir=tmp_path, busy=busy) for a in args]
+        args = [a.format(self=self_wav, dir=tmp_path, busy=busy, nan=tmp_path / "nan.wav") for a in args]
         done = run_cli(
             "live", "--partner", "none", "--seconds", "1", "--out", str(tmp_path / "out"), *args, env=pulse.env
         )
@@ -131,6 +138,38 @@ def test_bad_input_is_one_line(pulse, tmp_path: Path, args: list[str], problem: 
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and problem in lines[0], done.stderr
     assert not (tmp_path / "out" / "run_report.json").exists()
+
+
+@pytest.mark.parametrize("side", ["--partner", "--self"])
+def test_a_file_that_stops_decoding_ends_the_run(pulse, tmp_path: Path, side: str) -> None:
+    """A FLAC cut in half (5 s of speech, decodable for about 2.3 s): the run ends there, as a
+    drive does, with the report saying why and exit code 2; no thread traceback, no endless run."""
+    self_wav, _ = dialogue_halves(tmp_path / "in", seconds=5.0)
+    voice, rate = sf.read(self_wav, dtype="float32")
+    sf.write(tmp_path / "whole.flac", voice, rate)
+    data = (tmp_path / "whole.flac").read_bytes()
+    cut = tmp_path / "cut.flac"
+    cut.write_bytes(data[: len(data) // 2])
+    other = "--self" if side == "--partner" else "--partner"
+    out = tmp_path / "out"
+    done, report = _live(
+        pulse, out, side, str(cut), other, "none", "--play", SPEAKER, "--backend", "record", timeout=60
+    )
+    assert done.returncode == 2, done.stderr
+    assert "Traceback" not in done.stderr, done.stderr
+    last = done.stderr.strip().splitlines()[-1]
+    assert "cut.flac: the audio cannot be decoded" in last and "the run stopped there" in last, last
+    assert "cut.flac: the audio cannot be decoded" in report["input_error"]
+    assert report["frames"] < 5.0 * 30, "the run ended where the file failed, not at its length"
+    assert "stopped early: " in (out / "run_report.txt").read_text()
+
+
+def test_seconds_without_inputs_runs_that_long(pulse, tmp_path: Path) -> None:
+    """``--partner none --self none --seconds 2`` (what the error without --seconds suggests)
+    runs 2 seconds of frames, not the handful before the absent inputs 'ended'."""
+    done, report = _live(pulse, tmp_path / "out", "--partner", "none", "--self", "none", "--seconds", "2")
+    assert done.returncode == 0, done.stderr
+    assert 2 * 30 - 2 <= report["frames"] <= 2 * 30 + 1, report["frames"]
 
 
 def test_list_devices_names_the_sinks(pulse) -> None:

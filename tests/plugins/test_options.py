@@ -12,15 +12,13 @@ from pathlib import Path
 import pytest
 
 from convodrive.plugins import BACKEND_GROUP, GENERATOR_GROUP, load_plugin, plugin_names
+from convodrive.plugins.option_help import add_option_arguments, describe_options, option_arguments
 from convodrive.plugins.options import (
     REQUIRED,
     PluginOptions,
-    add_option_arguments,
     coerce_options,
-    describe_options,
     merge_options,
     option,
-    option_arguments,
     parse_options,
 )
 from convodrive.plumbing.errors import UserError

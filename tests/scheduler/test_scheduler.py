@@ -12,7 +12,7 @@ import pytest
 from bench.bench_scheduler import run_bench
 from convodrive.backends.base import Session
 from convodrive.scheduler import DropOldestSlot, MonotonicClock, Route, Scheduler, SimulatedClock
-from convodrive.scheduler.report import build_report, summarize
+from convodrive.scheduler.report import backend_state, build_report, summarize
 from tests.conftest import needs_realtime
 from tests.doubles import CountingBackend, FailingBackend, SlowBackend, neutral_frames
 
@@ -110,6 +110,33 @@ def test_report_has_the_figures_and_a_readable_summary(tmp_path: Path) -> None:
     assert report["backends"]["fast"]["frames_dropped"] == 0
     text = summarize(report)
     assert "20 frames" in text and "jitter" in text and "fast" in text
+
+
+def test_a_short_run_whose_every_send_failed_reports_failed(tmp_path: Path) -> None:
+    """Far fewer errors than the 90 in a row that stop a backend mid-run: the report still says
+    FAILED when every send failed, and the run as a whole failed when no backend worked."""
+    failing = FailingBackend({"name": "failing"})
+    result = Scheduler(neutral_frames(10), _open([failing], tmp_path, True), clock=SimulatedClock()).run()
+    report = build_report(result, {})
+    assert backend_state(report["backends"]["failing"]) == ("FAILED", "10 of 10 sends failed: OSError: port vanished")
+    assert report["every_backend_failed"] is True
+    assert "failing    FAILED" in summarize(report)
+
+    fast = CountingBackend({"name": "fast"})
+    result = Scheduler(
+        neutral_frames(10), _open([FailingBackend({"name": "failing"}), fast], tmp_path, True), clock=SimulatedClock()
+    ).run()
+    report = build_report(result, {})
+    assert report["every_backend_failed"] is False, "one body still moved"
+    assert backend_state(report["backends"]["fast"]) == ("ok", "")
+
+
+@pytest.mark.parametrize(
+    ("errors", "sent", "state"), [(0, 30, "ok"), (2, 28, "ok"), (5, 25, "degraded"), (27, 3, "FAILED")]
+)
+def test_the_share_of_failed_sends_sets_the_state(errors: int, sent: int, state: str) -> None:
+    entry = {"errors": errors, "frames_sent": sent, "last_error": "OSError: refused" if errors else ""}
+    assert backend_state(entry)[0] == state
 
 
 def test_short_benchmark_counts() -> None:

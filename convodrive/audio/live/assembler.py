@@ -59,8 +59,10 @@ class LiveAudio:
 
     ``time_at(mono)`` is the run's clock at monotonic time ``mono`` (None before the clock runs);
     ``self_end()`` the time-line position where a finite self voice ended (None while it goes on);
-    ``stop_at`` seconds end the run early (``--seconds``); ``monotonic`` is the clock capture
-    times are on (``time.monotonic``).
+    ``self_failed()`` why the self voice stopped for good part-way (None while it works), which,
+    like the partner's ``failed``, ends the run by raising it from ``chunks``; ``self_absent``:
+    there is no self voice (``--self none``), so its end ends nothing; ``stop_at`` seconds end
+    the run early (``--seconds``); ``monotonic`` is the clock capture times are on.
     """
 
     def __init__(
@@ -73,9 +75,13 @@ class LiveAudio:
         grace: float,
         stop_at: float | None = None,
         monotonic: Callable[[], float] = time.monotonic,
+        self_failed: Callable[[], Exception | None] = lambda: None,
+        self_absent: bool = False,
     ) -> None:
         self.self_voice = self_voice
         self.self_end = self_end
+        self.self_failed = self_failed
+        self.self_absent = self_absent
         self.partner = partner
         self.time_at = time_at
         self.partner_delay = partner_delay
@@ -134,8 +140,12 @@ class LiveAudio:
                 return
 
     def poll(self) -> AudioChunk | None:
-        """Take what the partner delivered; the chunk both voices have ready, or None."""
+        """Take what the partner delivered; the chunk both voices have ready, or None. Raises
+        why an input stopped for good part-way (a file that stopped decoding)."""
         self._take_partner()
+        error = self.partner.failed() or self.self_failed()
+        if error is not None:
+            raise error
         end = self._end()
         ready = self.self_voice.end
         if self._partner_silent():
@@ -269,11 +279,13 @@ class LiveAudio:
             self._late_fill += filled
 
     def _end(self) -> int | None:
-        """Where the run's audio ends: once every input that can end has, or at ``stop_at``."""
-        self_end = self.self_end()
+        """Where the run's audio ends: once every input there is has ended, or at ``stop_at``
+        (with neither input, only there)."""
+        inputs = [(self.self_absent, self.self_end()), (self.partner.absent, self._partner_end)]
+        present = [end for absent, end in inputs if not absent]
         ends = None
-        if self_end is not None and self._partner_end is not None:
-            ends = max(self_end, self._partner_end)
+        if present and all(end is not None for end in present):
+            ends = max(end for end in present if end is not None)
         if self.stop_at is not None:
             ends = self.stop_at if ends is None else min(ends, self.stop_at)
         return ends

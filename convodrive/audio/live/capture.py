@@ -48,6 +48,8 @@ Captured = tuple[np.ndarray, float]
 class PartnerInput(abc.ABC):
     describe: str = ""
     finite: bool = False
+    absent: bool = False
+    """True for ``--partner none``: nobody to listen to, so nothing whose end ends the run."""
 
     @abc.abstractmethod
     def start(self) -> None: ...
@@ -64,6 +66,11 @@ class PartnerInput(abc.ABC):
         """Why the input went away, once it has; None while it works."""
         return None
 
+    def failed(self) -> Exception | None:
+        """Why a finite input stopped for good before its end (a file that stopped decoding),
+        once everything before that has been pulled; the run ends there."""
+        return None
+
     def close(self) -> None:  # noqa: B027 (optional hook)
         pass
 
@@ -75,6 +82,7 @@ class NoPartner(PartnerInput):
     """``--partner none``: nobody to listen to."""
 
     finite = True
+    absent = True
     describe = "none"
 
     def start(self) -> None:
@@ -205,11 +213,20 @@ class FileAsMicrophone(PartnerInput):
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._deliver, name="partner-file", daemon=True)
         self.delivered = 0
+        self.error: Exception | None = None
 
     def start(self) -> None:
         self._thread.start()
 
     def _deliver(self) -> None:
+        try:
+            self._deliver_blocks()
+        except Exception as exc:  # a file that stops decoding part-way: the run ends there
+            self.error = exc
+        finally:
+            self._done.set()
+
+    def _deliver_blocks(self) -> None:
         block = int(BLOCK_SECONDS * ANALYSIS_RATE)
         while not self._ready() and not self._stop.is_set():
             time.sleep(0.002)
@@ -222,7 +239,6 @@ class FileAsMicrophone(PartnerInput):
                 break
             self._blocks.append((chunk.self_voice.astype(np.float32), t0 + chunk.start / ANALYSIS_RATE))
             self.delivered += len(chunk)
-        self._done.set()
 
     def pull(self) -> list[Captured]:
         out = []
@@ -232,6 +248,9 @@ class FileAsMicrophone(PartnerInput):
 
     def ended(self) -> bool:
         return self._done.is_set() and not self._blocks
+
+    def failed(self) -> Exception | None:
+        return self.error if self.ended() else None
 
     def close(self) -> None:
         self._stop.set()
