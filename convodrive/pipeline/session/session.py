@@ -29,8 +29,8 @@ from typing import Any
 from convodrive import FPS
 from convodrive.audio.live.assembler import LiveAudio
 from convodrive.audio.live.devices import find_device
+from convodrive.audio.live.feeder import SelfVoiceFeeder
 from convodrive.audio.live.playback import Playback
-from convodrive.audio.live.self_voice import SelfVoiceFeeder
 from convodrive.audio.source import ANALYSIS_RATE
 from convodrive.backends.base import Session
 from convodrive.generators.base import ConversationEvent, Event, Generator
@@ -38,7 +38,7 @@ from convodrive.motion.channels import BLENDSHAPE_INDEX
 from convodrive.motion.targets import TargetFrame
 from convodrive.pipeline.backends import close_all, make_backends, open_backends, run_in_own_processes
 from convodrive.pipeline.config import load_run_config
-from convodrive.pipeline.live import GENERATION_MARGIN, PARTNER_GRACE, RING_SPARE, SELF_JITTER, SELF_MARGIN
+from convodrive.pipeline.live_run import GENERATION_MARGIN, PARTNER_GRACE, RING_SPARE, SELF_JITTER, SELF_MARGIN
 from convodrive.pipeline.run import DEFAULT_GENERATOR, DriveResult, make_generator
 from convodrive.pipeline.session.follower import FollowedVoice
 from convodrive.pipeline.session.inputs import (
