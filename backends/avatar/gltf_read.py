@@ -10,16 +10,13 @@ missing) is one ``InputFileError`` line naming the file and the problem.
 
 from __future__ import annotations
 
-import base64
-import io
-import json
-import struct
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 
+from convodrive.backends.avatar.gltf_assemble import Parts
+from convodrive.backends.avatar.gltf_container import GltfData
 from convodrive.backends.avatar.humanoid import (
     CANONICAL_TO_VRM,
     REQUIRED_BONES,
@@ -29,15 +26,12 @@ from convodrive.backends.avatar.humanoid import (
     canonical_for_name,
     read_name_map,
 )
-from convodrive.backends.avatar.rig import Material, Rig, Skeleton, Surface, decompose, trs_matrix
-from convodrive.motion.channels import ARKIT_NAMES
+from convodrive.backends.avatar.rig import Material, Rig, Skeleton, decompose, trs_matrix
 from convodrive.motion.rotations import quat_to_matrix
-from convodrive.motion.skeleton import JOINT_INDEX, JOINT_NAMES
+from convodrive.motion.skeleton import JOINT_INDEX
 from convodrive.plumbing.errors import InputFileError
 
 AVATAR_SUFFIXES = (".glb", ".gltf", ".vrm", ".yaml", ".yml")
-_COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
-_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 _SKIN_LIKE = ("skin", "body", "face", "head", "hand", "arm", "leg", "neck")
 
 
@@ -58,97 +52,19 @@ def load_avatar(path: Path) -> Rig:
         path = names.avatar
         if not path.is_file():
             raise InputFileError(path, "no such file (named by 'avatar' in the name map)")
-    return _Reader(path, names).rig()
+    try:
+        return _Reader(path, names).rig()
+    except (KeyError, IndexError, TypeError, ValueError, AttributeError) as exc:  # a field not checked up front
+        raise InputFileError(path, f"malformed glTF ({exc.__class__.__name__}: {exc})") from None
 
 
-class _Reader:
+class _Reader(GltfData):
+    """The document's default scene read as a rig: skeleton, skinned and rigid meshes, morphs."""
+
     def __init__(self, path: Path, names: NameMap | None) -> None:
-        self.path = path
+        super().__init__(path)
         self.names = names
-        self.doc, self.bin = _read_container(path)
-        self._buffers: dict[int, bytes] = {}
         self.num_joints = 0
-
-    def fail(self, problem: str) -> InputFileError:
-        return InputFileError(self.path, problem)
-
-    # ------------------------------------------------------------------ raw data
-
-    def buffer(self, index: int) -> bytes:
-        if index not in self._buffers:
-            try:
-                entry = self.doc["buffers"][index]
-                uri = entry.get("uri")
-                if uri is None:
-                    if self.bin is None:
-                        raise self.fail(f"buffer {index} has no uri and the file has no binary chunk")
-                    data = self.bin
-                elif uri.startswith("data:"):
-                    data = base64.b64decode(uri.split(",", 1)[1])
-                else:
-                    data = (self.path.parent / uri).read_bytes()
-            except (OSError, KeyError, IndexError, ValueError) as exc:
-                raise self.fail(f"cannot read buffer {index} ({exc})") from None
-            self._buffers[index] = data
-        return self._buffers[index]
-
-    def view_bytes(self, index: int) -> tuple[bytes, int, int | None]:
-        view = self.doc["bufferViews"][index]
-        data = self.buffer(view["buffer"])
-        start = view.get("byteOffset", 0)
-        return data[start : start + view["byteLength"]], view["byteLength"], view.get("byteStride")
-
-    def accessor(self, index: int) -> np.ndarray:
-        """(count, width) float64 or int64 array of accessor ``index``, sparse and normalised
-        values resolved."""
-        try:
-            acc = self.doc["accessors"][index]
-            dtype = np.dtype(_COMPONENTS[acc["componentType"]]).newbyteorder("<")
-            width, count = _WIDTH[acc["type"]], acc["count"]
-            if "bufferView" in acc:
-                data, _, stride = self.view_bytes(acc["bufferView"])
-                offset, item = acc.get("byteOffset", 0), dtype.itemsize * width
-                stride = stride or item
-                raw = np.frombuffer(data, np.uint8, count=(count - 1) * stride + item, offset=offset)
-                rows = np.lib.stride_tricks.as_strided(raw, (count, item), (stride, 1))
-                out = np.ascontiguousarray(rows).view(dtype).reshape(count, width)
-            else:
-                out = np.zeros((count, width), dtype)
-            out = out.astype(np.float64 if dtype.kind == "f" or acc.get("normalized") else np.int64)
-            if acc.get("normalized") and dtype.kind != "f":
-                info = np.iinfo(dtype)
-                out = np.maximum(out / info.max, -1.0)
-            sparse = acc.get("sparse")
-            if sparse:
-                idx_type = np.dtype(_COMPONENTS[sparse["indices"]["componentType"]]).newbyteorder("<")
-                idx_data, _, _ = self.view_bytes(sparse["indices"]["bufferView"])
-                rows_idx = np.frombuffer(idx_data, idx_type, sparse["count"], sparse["indices"].get("byteOffset", 0))
-                val_data, _, _ = self.view_bytes(sparse["values"]["bufferView"])
-                values = np.frombuffer(val_data, dtype, sparse["count"] * width, sparse["values"].get("byteOffset", 0))
-                out = out.copy()
-                out[rows_idx.astype(np.int64)] = values.reshape(-1, width)
-            return out
-        except InputFileError:
-            raise
-        except (KeyError, IndexError, ValueError, TypeError) as exc:
-            raise self.fail(f"accessor {index} is malformed ({exc.__class__.__name__}: {exc})") from None
-
-    def image(self, index: int) -> np.ndarray | None:
-        from PIL import Image, UnidentifiedImageError
-
-        try:
-            entry = self.doc["images"][index]
-            if "bufferView" in entry:
-                data = self.view_bytes(entry["bufferView"])[0]
-            elif str(entry.get("uri", "")).startswith("data:"):
-                data = base64.b64decode(entry["uri"].split(",", 1)[1])
-            else:
-                data = (self.path.parent / entry["uri"]).read_bytes()
-            return np.asarray(Image.open(io.BytesIO(data)).convert("RGBA"))
-        except (OSError, KeyError, IndexError, ValueError, UnidentifiedImageError):
-            return None  # a texture we cannot decode (KTX2, a missing file): base colour only
-
-    # ------------------------------------------------------------------ scene
 
     def node_local(self, index: int) -> np.ndarray:
         node = self.doc["nodes"][index]
@@ -209,7 +125,7 @@ class _Reader:
         skeleton = self.skeleton(joint_nodes, parent, world, inverse_bind)
         self.num_joints = skeleton.num_joints
 
-        parts = _Parts()
+        parts = Parts()
         for i in skinned:
             skin_joints = [joint_of[n] for n in doc["skins"][nodes[i]["skin"]]["joints"]]
             self.add_mesh(parts, nodes[i]["mesh"], skin_joints, None)
@@ -222,7 +138,7 @@ class _Reader:
                     self.add_mesh(parts, nodes[i]["mesh"], [j], bind)
         if not parts.surfaces:
             raise self.fail("has no triangles in its skinned meshes")
-        return parts.to_rig(self, skeleton)
+        return parts.to_rig(self.path.stem, self.doc, skeleton)
 
     def skeleton(
         self, joint_nodes: list[int], parent: np.ndarray, world: dict[int, np.ndarray], inverse_bind: np.ndarray
@@ -277,7 +193,7 @@ class _Reader:
             canonical=canonical,
         )
 
-    def add_mesh(self, parts: _Parts, mesh_index: int, joints: list[int], rigid: np.ndarray | None) -> None:
+    def add_mesh(self, parts: Parts, mesh_index: int, joints: list[int], rigid: np.ndarray | None) -> None:
         """Append a mesh's triangle primitives; ``rigid`` (a 4x4) binds every vertex to ``joints[0]``."""
         mesh = self.doc["meshes"][mesh_index]
         target_names = list(mesh.get("extras", {}).get("targetNames", []))
@@ -393,112 +309,6 @@ class _Reader:
         )
 
 
-class _Parts:
-    """Surfaces gathered from the file's primitives, concatenated into one rig."""
-
-    def __init__(self) -> None:
-        self.surfaces: list[
-            tuple[
-                Material,
-                np.ndarray,
-                np.ndarray | None,
-                np.ndarray,
-                np.ndarray | None,
-                np.ndarray,
-                sp.csr_matrix,
-                dict[str, np.ndarray],
-            ]
-        ] = []
-
-    def add(self, material, pos, normals, colors, uv, faces, weights, deltas) -> None:  # type: ignore[no-untyped-def]
-        self.surfaces.append((material, pos, normals, colors, uv, faces, weights, deltas))
-
-    def to_rig(self, reader: _Reader, skeleton: Skeleton) -> Rig:
-        from convodrive.backends.avatar.skinning import smooth_normals
-
-        materials, surfaces, normals, weights = [], [], [], []
-        offset = 0
-        for material, pos, nrm, _, _, faces, w, _ in self.surfaces:
-            materials.append(material)
-            surfaces.append(Surface(len(materials) - 1, offset, offset + len(pos), faces.astype(np.uint32)))
-            if nrm is None:
-                nrm = smooth_normals(pos, faces)
-            normals.append(nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12))
-            w = w.tocsr()
-            w.resize((len(pos), skeleton.num_joints))
-            weights.append(w)
-            offset += len(pos)
-        rest = np.concatenate([s[1] for s in self.surfaces])
-        present = {name for s in self.surfaces for name in s[7]}
-        names = tuple(n for n in ARKIT_NAMES if n in present)
-        full = np.zeros((len(names), len(rest), 3))
-        for k, name in enumerate(names):
-            full[k] = np.concatenate([s[7].get(name, np.zeros((len(s[1]), 3))) for s in self.surfaces])
-        index = np.flatnonzero(np.abs(full).max(axis=(0, 2)) > 0) if names else np.zeros(0, np.int64)
-        any_uv = any(s[4] is not None for s in self.surfaces)
-        rig = Rig(
-            name=reader.path.stem,
-            rest=rest.astype(np.float32),
-            normals=np.concatenate(normals).astype(np.float32),
-            colors=np.concatenate([s[3] for s in self.surfaces]).astype(np.float32),
-            uv=np.concatenate([s[4] if s[4] is not None else np.zeros((len(s[1]), 2)) for s in self.surfaces]).astype(
-                np.float32
-            )
-            if any_uv
-            else None,
-            surfaces=surfaces,
-            materials=materials,
-            skeleton=skeleton,
-            weights=sp.vstack(weights).tocsr(),
-            morph_names=names,
-            morph_index=index,
-            morph_deltas=full[:, index].astype(np.float32),
-            landmarks={},
-        )
-        rig.landmarks = _landmarks(reader, rig)
-        return rig
-
-
-def _landmarks(reader: _Reader, rig: Rig) -> dict[str, np.ndarray]:
-    """Our own files carry the landmarks; for others, measure them on the head's vertices."""
-    saved = reader.doc.get("asset", {}).get("extras", {}).get("convodrive", {}).get("landmarks")
-    if isinstance(saved, dict) and {"crown", "chin", "hairline", "pelvis"} <= set(saved):
-        return {k: np.asarray(v, float) for k, v in saved.items()}
-    from convodrive.backends.avatar.skinning import RigPoser
-    from convodrive.motion.clip import MotionFrame
-
-    sk = rig.skeleton
-    poser = RigPoser(rig)
-    verts, _ = poser.pose(MotionFrame.neutral())
-    world = poser.joint_world(MotionFrame.neutral())
-    joint = {JOINT_NAMES[c]: j for j, c in enumerate(sk.canonical) if c >= 0}
-    head_j = joint["head"]
-    on_head = np.asarray(rig.weights[:, head_j].todense()).ravel() > 0.5
-    head_v = verts[on_head] if on_head.sum() > 10 else verts
-    head = world[head_j, :3, 3]
-    crown_y, low_y = head_v[:, 1].max(), head_v[:, 1].min()
-    front_z = head_v[:, 2].max()
-    if "left_eye_smplhf" in joint and "right_eye_smplhf" in joint:
-        eye_y = 0.5 * (world[joint["left_eye_smplhf"], 1, 3] + world[joint["right_eye_smplhf"], 1, 3])
-        chin_y = eye_y - 0.69 * (crown_y - eye_y)  # a face's proportions: the eyes sit mid-head
-    else:
-        chin_y = low_y
-        eye_y = chin_y + 0.45 * (crown_y - chin_y)
-    span = crown_y - chin_y
-    pelvis = world[joint["pelvis"], :3, 3]
-    x = head[0]
-    return {
-        "head": head,
-        "crown": np.array([x, crown_y, head[2]]),
-        "chin": np.array([x, chin_y, front_z - 0.02 * span]),
-        "mouth": np.array([x, chin_y + 0.17 * span, front_z - 0.03 * span]),
-        "hairline": np.array([x, chin_y + 0.72 * span, front_z - 0.1 * span]),
-        "left_eye": np.array([head[0] + 0.13 * span, eye_y, front_z - 0.05 * span]),
-        "right_eye": np.array([head[0] - 0.13 * span, eye_y, front_z - 0.05 * span]),
-        "pelvis": pelvis,
-    }
-
-
 def _depth(parent: np.ndarray, node: int) -> int:
     d = 0
     while parent[node] >= 0:
@@ -524,40 +334,3 @@ def _triangles(indices: np.ndarray, mode: int) -> np.ndarray:
         tri[1::2] = tri[1::2][:, [1, 0, 2]]
         return tri
     return np.stack([np.full(len(k), indices[0]), indices[k + 1], indices[k + 2]], 1)  # fan
-
-
-def _read_container(path: Path) -> tuple[dict[str, Any], bytes | None]:
-    """The JSON document and the binary chunk of a .glb/.vrm, or the JSON of a .gltf."""
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise InputFileError(path, f"cannot read ({exc.strerror or exc})") from None
-    blob = None
-    if data[:4] == b"glTF":
-        if len(data) < 20:
-            raise InputFileError(path, "truncated glTF binary (shorter than its header)")
-        _, version, length = struct.unpack_from("<4sII", data)
-        if version != 2:
-            raise InputFileError(path, f"glTF version {version} is not supported (expected 2.0)")
-        if length > len(data):
-            raise InputFileError(path, f"truncated glTF binary ({len(data)} of {length} bytes)")
-        offset, text = 12, None
-        while offset + 8 <= length:
-            size, kind = struct.unpack_from("<I4s", data, offset)
-            chunk = data[offset + 8 : offset + 8 + size]
-            if kind == b"JSON":
-                text = chunk
-            elif kind == b"BIN\0" and blob is None:
-                blob = bytes(chunk)
-            offset += 8 + size
-        if text is None:
-            raise InputFileError(path, "glTF binary without a JSON chunk")
-    else:
-        text = data
-    try:
-        doc = json.loads(text.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError):
-        raise InputFileError(path, "not a glTF 2.0 file (neither a glTF binary nor glTF JSON)") from None
-    if not isinstance(doc, dict) or not str(doc.get("asset", {}).get("version", "")).startswith("2"):
-        raise InputFileError(path, "not a glTF 2.0 file (no asset.version 2.0)")
-    return doc, blob

@@ -21,7 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from convodrive import __version__
-from convodrive.backends.avatar.rig import Rig
+from convodrive.backends.avatar.rig import Rig, Skeleton
 from convodrive.backends.avatar.skinning import vertex_normals, welded_incidence
 from convodrive.motion.rotations import matrix_to_quat
 from convodrive.plumbing.atomic import atomic_path
@@ -137,89 +137,12 @@ def rig_to_gltf(rig: Rig) -> tuple[dict[str, Any], bytes]:
     """The glTF JSON document and its binary chunk."""
     b = _Builder()
     sk = rig.skeleton
-    nodes: list[dict[str, Any]] = []
-    for j in range(sk.num_joints):
-        node: dict[str, Any] = {"name": sk.names[j]}
-        if np.any(np.abs(sk.translation[j]) > 0):
-            node["translation"] = [float(x) for x in sk.translation[j]]
-        if not np.allclose(sk.rotation[j], np.eye(3)):
-            node["rotation"] = _quat_xyzw(sk.rotation[j])
-        if not np.allclose(sk.scale[j], 1.0):
-            node["scale"] = [float(x) for x in sk.scale[j]]
-        children = [int(c) for c in np.flatnonzero(sk.parents == j)]
-        if children:
-            node["children"] = children
-        nodes.append(node)
+    nodes = _joint_nodes(sk)
     roots = [int(j) for j in np.flatnonzero(sk.parents < 0)]
     mesh_node = len(nodes)
     nodes.append({"name": rig.name, "mesh": 0, "skin": 0})
-
-    faces_all = np.concatenate([s.faces.astype(np.int64) + s.start for s in rig.surfaces])
-    morph_normals = _morph_normals(rig, faces_all) if rig.morph_names else None
-    morph_full = np.zeros((len(rig.morph_names), rig.num_vertices, 3), np.float32)
-    morph_full[:, rig.morph_index] = rig.morph_deltas
-    weights = rig.weights.tocsr()
-    influences = max(4, int(np.diff(weights.indptr).max()))
-    if influences > 4:
-        raise ValueError(f"{rig.name}: {influences} joints on one vertex; glTF's JOINTS_0 takes 4")
-    joint_type = UINT8 if sk.num_joints < 256 else UINT16
-
-    textures: list[dict[str, Any]] = []
-    images: list[dict[str, Any]] = []
-    materials = []
-    for m in rig.materials:
-        if not all(0.0 <= c <= 1.0 for c in m.color):
-            raise ValueError(f"material {m.name}: base colour factor {m.color} is outside glTF's [0, 1]")
-        pbr: dict[str, Any] = {"baseColorFactor": list(m.color), "metallicFactor": 0.0, "roughnessFactor": m.roughness}
-        if m.texture is not None:
-            images.append({"bufferView": b.view(_png(m.texture)), "mimeType": "image/png"})
-            textures.append({"source": len(images) - 1, "sampler": 0})
-            pbr["baseColorTexture"] = {"index": len(textures) - 1}
-        entry: dict[str, Any] = {
-            "name": m.name,
-            "pbrMetallicRoughness": pbr,
-            "extras": {"convodrive": {"scatter": m.scatter}},
-        }
-        if m.alpha_cutoff is not None:
-            entry["alphaMode"], entry["alphaCutoff"] = "MASK", m.alpha_cutoff
-        if m.double_sided:
-            entry["doubleSided"] = True
-        materials.append(entry)
-
-    primitives = []
-    for s in rig.surfaces:
-        rows = slice(s.start, s.end)
-        joints, wts = _four_influences(weights[rows])
-        colors = rig.colors[rows]
-        attributes = {
-            "POSITION": b.accessor(rig.rest[rows], "VEC3", FLOAT, ARRAY_BUFFER, bounds=True),
-            "NORMAL": b.accessor(rig.normals[rows], "VEC3", FLOAT, ARRAY_BUFFER),
-            "COLOR_0": b.accessor(
-                colors[:, :3] if np.all(colors[:, 3] == 1) else colors,
-                "VEC3" if np.all(colors[:, 3] == 1) else "VEC4",
-                FLOAT,
-                ARRAY_BUFFER,
-            ),
-            "JOINTS_0": b.accessor(joints, "VEC4", joint_type, ARRAY_BUFFER),
-            "WEIGHTS_0": b.accessor(wts, "VEC4", FLOAT, ARRAY_BUFFER),
-        }
-        if rig.uv is not None:
-            attributes["TEXCOORD_0"] = b.accessor(rig.uv[rows], "VEC2", FLOAT, ARRAY_BUFFER)
-        prim: dict[str, Any] = {
-            "attributes": attributes,
-            "indices": b.accessor(s.faces.reshape(-1), "SCALAR", UINT32, ELEMENT_ARRAY_BUFFER),
-            "material": s.material,
-            "mode": 4,
-        }
-        if rig.morph_names:
-            assert morph_normals is not None
-            prim["targets"] = [
-                {"POSITION": b.sparse_vec3(morph_full[k, rows]), "NORMAL": b.sparse_vec3(morph_normals[k, rows])}
-                for k in range(len(rig.morph_names))
-            ]
-        primitives.append(prim)
-
-    mesh: dict[str, Any] = {"name": rig.name, "primitives": primitives}
+    materials, images, textures = _materials(rig, b)  # before the meshes: the texture views come first
+    mesh: dict[str, Any] = {"name": rig.name, "primitives": _primitives(rig, b)}
     if rig.morph_names:
         mesh["weights"] = [0.0] * len(rig.morph_names)
         mesh["extras"] = {"targetNames": list(rig.morph_names)}
@@ -250,6 +173,93 @@ def rig_to_gltf(rig: Rig) -> tuple[dict[str, Any], bytes]:
         doc["images"], doc["textures"] = images, textures
         doc["samplers"] = [{"magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 10497}]
     return doc, bytes(b.blob)
+
+
+def _joint_nodes(sk: Skeleton) -> list[dict[str, Any]]:
+    """One node per joint, its rest transform as TRS (identity parts left out) and its children."""
+    nodes: list[dict[str, Any]] = []
+    for j in range(sk.num_joints):
+        node: dict[str, Any] = {"name": sk.names[j]}
+        if np.any(np.abs(sk.translation[j]) > 0):
+            node["translation"] = [float(x) for x in sk.translation[j]]
+        if not np.allclose(sk.rotation[j], np.eye(3)):
+            node["rotation"] = _quat_xyzw(sk.rotation[j])
+        if not np.allclose(sk.scale[j], 1.0):
+            node["scale"] = [float(x) for x in sk.scale[j]]
+        children = [int(c) for c in np.flatnonzero(sk.parents == j)]
+        if children:
+            node["children"] = children
+        nodes.append(node)
+    return nodes
+
+
+def _materials(rig: Rig, b: _Builder) -> tuple[list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]]]:
+    """The materials, and the images and textures of those with a base colour texture (PNG)."""
+    textures: list[dict[str, Any]] = []
+    images: list[dict[str, Any]] = []
+    materials = []
+    for m in rig.materials:
+        if not all(0.0 <= c <= 1.0 for c in m.color):
+            raise ValueError(f"material {m.name}: base colour factor {m.color} is outside glTF's [0, 1]")
+        pbr: dict[str, Any] = {"baseColorFactor": list(m.color), "metallicFactor": 0.0, "roughnessFactor": m.roughness}
+        if m.texture is not None:
+            images.append({"bufferView": b.view(_png(m.texture)), "mimeType": "image/png"})
+            textures.append({"source": len(images) - 1, "sampler": 0})
+            pbr["baseColorTexture"] = {"index": len(textures) - 1}
+        entry: dict[str, Any] = {
+            "name": m.name,
+            "pbrMetallicRoughness": pbr,
+            "extras": {"convodrive": {"scatter": m.scatter}},
+        }
+        if m.alpha_cutoff is not None:
+            entry["alphaMode"], entry["alphaCutoff"] = "MASK", m.alpha_cutoff
+        if m.double_sided:
+            entry["doubleSided"] = True
+        materials.append(entry)
+    return materials, images, textures
+
+
+def _primitives(rig: Rig, b: _Builder) -> list[dict[str, Any]]:
+    """One triangle primitive per surface: its vertex attributes, skin and sparse morph targets."""
+    faces_all = np.concatenate([s.faces.astype(np.int64) + s.start for s in rig.surfaces])
+    morph_normals = _morph_normals(rig, faces_all) if rig.morph_names else None
+    morph_full = np.zeros((len(rig.morph_names), rig.num_vertices, 3), np.float32)
+    morph_full[:, rig.morph_index] = rig.morph_deltas
+    weights = rig.weights.tocsr()
+    influences = max(4, int(np.diff(weights.indptr).max()))
+    if influences > 4:
+        raise ValueError(f"{rig.name}: {influences} joints on one vertex; glTF's JOINTS_0 takes 4")
+    joint_type = UINT8 if rig.skeleton.num_joints < 256 else UINT16
+    primitives = []
+    for s in rig.surfaces:
+        rows = slice(s.start, s.end)
+        joints, wts = _four_influences(weights[rows])
+        colors = rig.colors[rows]
+        opaque = bool(np.all(colors[:, 3] == 1))
+        attributes = {
+            "POSITION": b.accessor(rig.rest[rows], "VEC3", FLOAT, ARRAY_BUFFER, bounds=True),
+            "NORMAL": b.accessor(rig.normals[rows], "VEC3", FLOAT, ARRAY_BUFFER),
+            "COLOR_0": b.accessor(
+                colors[:, :3] if opaque else colors, "VEC3" if opaque else "VEC4", FLOAT, ARRAY_BUFFER
+            ),
+            "JOINTS_0": b.accessor(joints, "VEC4", joint_type, ARRAY_BUFFER),
+            "WEIGHTS_0": b.accessor(wts, "VEC4", FLOAT, ARRAY_BUFFER),
+        }
+        if rig.uv is not None:
+            attributes["TEXCOORD_0"] = b.accessor(rig.uv[rows], "VEC2", FLOAT, ARRAY_BUFFER)
+        prim: dict[str, Any] = {
+            "attributes": attributes,
+            "indices": b.accessor(s.faces.reshape(-1), "SCALAR", UINT32, ELEMENT_ARRAY_BUFFER),
+            "material": s.material,
+            "mode": 4,
+        }
+        if morph_normals is not None:
+            prim["targets"] = [
+                {"POSITION": b.sparse_vec3(morph_full[k, rows]), "NORMAL": b.sparse_vec3(morph_normals[k, rows])}
+                for k in range(len(rig.morph_names))
+            ]
+        primitives.append(prim)
+    return primitives
 
 
 def glb_bytes(doc: dict[str, Any], blob: bytes) -> bytes:

@@ -14,7 +14,8 @@ import functools
 
 import numpy as np
 
-from convodrive.backends.avatar.mannequin_face import COLORS, face_landmarks, face_parts
+from convodrive.backends.avatar.mannequin_face import face_landmarks, face_parts
+from convodrive.backends.avatar.mannequin_head import COLORS
 from convodrive.backends.avatar.mesh_build import (
     Part,
     chain_weights,

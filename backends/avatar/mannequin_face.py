@@ -1,5 +1,5 @@
-"""The mannequin's head: skull, face, eyes, lids, mouth, nose, ears, brows and hair, with the 52
-ARKit morph targets.
+"""The mannequin's face: lips, mouth, eyes, lids, nose, ears, brows and hair, set on the skull of
+``mannequin_head``; with the skin's they carry the 52 ARKit morph targets.
 
 Every face channel is a linear morph target, as in any glTF avatar, so the exported mannequin
 moves exactly as the built-in one: the jaw's opening is the lower face turned about a pivot, the
@@ -12,6 +12,24 @@ from __future__ import annotations
 
 import numpy as np
 
+from convodrive.backends.avatar.mannequin_head import (
+    COLORS,
+    EYE_RADIUS,
+    EYES,
+    HEAD_CENTER,
+    HEAD_RADII,
+    MOUTH_HALF_WIDTH,
+    MOUTH_Y,
+    J,
+    gauss,
+    head_part,
+    head_point,
+    head_rigid,
+    jaw_delta,
+    mouth_rig_deltas,
+    skin_colors,
+    surface_z,
+)
 from convodrive.backends.avatar.mesh_build import (
     Part,
     ellipsoid,
@@ -23,218 +41,7 @@ from convodrive.backends.avatar.mesh_build import (
     rigid_weights,
     smoothstep,
 )
-from convodrive.motion.skeleton import JOINT_INDEX, NUM_JOINTS, REST_POSITIONS
-
-J = JOINT_INDEX
-
-COLORS: dict[str, tuple[float, float, float]] = {
-    "skin": (0.78, 0.575, 0.475),
-    "blush": (0.78, 0.49, 0.43),
-    "socket": (0.66, 0.48, 0.42),
-    "lips": (0.64, 0.33, 0.32),
-    "hair": (0.13, 0.085, 0.06),
-    "sclera": (0.80, 0.77, 0.73),
-    "sclera_edge": (0.66, 0.56, 0.52),
-    "iris": (0.26, 0.40, 0.44),
-    "iris_inner": (0.45, 0.47, 0.33),
-    "limbus": (0.08, 0.11, 0.13),
-    "pupil": (0.015, 0.015, 0.02),
-    "teeth": (0.90, 0.87, 0.80),
-    "mouth": (0.26, 0.07, 0.08),
-    "tongue": (0.62, 0.29, 0.30),
-    "lash": (0.07, 0.05, 0.04),
-}
-
-HEAD_CENTER = np.array([0.0, 1.645, 0.005])
-HEAD_RADII = np.array([0.077, 0.115, 0.098])
-EYE_RADIUS = 0.0115
-EYES = (REST_POSITIONS[J["left_eye_smplhf"]].copy(), REST_POSITIONS[J["right_eye_smplhf"]].copy())
-MOUTH_Y = 1.572
-MOUTH_HALF_WIDTH = 0.025
-JAW_PIVOT = np.array([0.0, 1.60, -0.02])
-JAW_OPEN_ANGLE = 0.27
-"""Radians the lower face turns about ``JAW_PIVOT`` at ``jawOpen`` = 1. The ``jaw`` joint's
-rotation is read as the same opening (``RigPoser.morph_weights``), so joint and channel never
-open the mouth twice."""
-
-
-def _taper(dy: np.ndarray) -> np.ndarray:
-    """Narrower toward the jaw: the head's half-width scale at normalised height ``dy``."""
-    return 1.0 - 0.13 * np.maximum(-dy, 0.0) ** 1.5
-
-
-def head_point(d: np.ndarray) -> np.ndarray:
-    """Map unit directions to the head surface (an ellipsoid with a tapered jaw, fuller at the back)."""
-    dy = d[..., 1]
-    back = np.where(d[..., 2] < 0, 1.06, 1.0)
-    return HEAD_CENTER + np.stack([d[..., 0] * _taper(dy), dy, d[..., 2] * back], -1) * HEAD_RADII
-
-
-def surface_z(x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
-    """The front of the head surface at (x, y), before eye sockets are pressed in."""
-    dy = np.clip((np.asarray(y, float) - HEAD_CENTER[1]) / HEAD_RADII[1], -0.999, 0.999)
-    c = np.sqrt(1 - dy**2)
-    s = np.clip((np.asarray(x, float) - HEAD_CENTER[0]) / (HEAD_RADII[0] * _taper(dy) * c), -0.999, 0.999)
-    return HEAD_CENTER[2] + HEAD_RADII[2] * c * np.sqrt(1 - s**2)
-
-
-def _rotate_x(p: np.ndarray, pivot: np.ndarray, angle: float) -> np.ndarray:
-    r = p - pivot
-    c, s = np.cos(angle), np.sin(angle)
-    return pivot + np.stack([r[:, 0], r[:, 1] * c - r[:, 2] * s, r[:, 1] * s + r[:, 2] * c], 1)
-
-
-def jaw_delta(p: np.ndarray) -> np.ndarray:
-    """Displacement of rest points carried by a fully open jaw."""
-    return _rotate_x(p, JAW_PIVOT, JAW_OPEN_ANGLE) - p
-
-
-def _gauss(p: np.ndarray, x: float, y: float, sx: float, sy: float) -> np.ndarray:
-    return np.exp(-(((p[:, 0] - x) / sx) ** 2 + ((p[:, 1] - y) / sy) ** 2))
-
-
-def _head_rigid(p: Part) -> Part:
-    p.weights = rigid_weights(len(p.verts), J["head"], NUM_JOINTS)
-    return p
-
-
-# ---------------------------------------------------------------------------------------- skull
-
-
-def _head() -> Part:
-    rows, cols = 44, 56
-    v = np.linspace(-1, 1, rows)
-    lat = np.sign(v) * np.abs(v) ** 1.15 * (np.pi / 2 - 0.02)
-    u = np.linspace(-1, 1, cols, endpoint=False)
-    lon = np.sign(u) * np.abs(u) ** 1.5 * np.pi
-    d = np.stack(
-        [
-            np.cos(lat)[:, None] * np.sin(lon),
-            np.repeat(np.sin(lat)[:, None], cols, 1),
-            np.cos(lat)[:, None] * np.cos(lon),
-        ],
-        -1,
-    ).reshape(-1, 3)
-    verts = head_point(d)
-    verts = np.concatenate([verts, [head_point(np.array([0, -1.0, 0])), head_point(np.array([0, 1.0, 0]))]])
-    # less of an egg: a brow ridge and cheekbones that seat the eyes, a jaw with corners, a chin
-    front = smoothstep(0.02, 0.07, verts[:, 2])
-    ey = EYES[0][1]
-    for sgn in (1, -1):
-        verts[:, 2] += 0.006 * _gauss(verts, sgn * 0.03, ey + 0.019, 0.024, 0.008) * front
-        verts[:, 2] += 0.005 * _gauss(verts, sgn * 0.036, ey - 0.024, 0.02, 0.011) * front
-        verts[:, 0] += sgn * 0.004 * _gauss(verts, sgn * 0.055, ey - 0.03, 0.02, 0.02) * front
-        verts[:, 0] += sgn * 0.007 * _gauss(verts, sgn * 0.06, 1.56, 0.025, 0.03) * smoothstep(-0.06, 0.0, verts[:, 2])
-    verts[:, 2] += 0.005 * _gauss(verts, 0.0, 1.535, 0.02, 0.012) * front
-    for eye in EYES:  # eye sockets: press the skin in front of each eye back behind the eyeball
-        rho = np.hypot((verts[:, 0] - eye[0]) / 1.2, verts[:, 1] - eye[1])
-        dent = smoothstep(0.024, 0.0125, rho) * (verts[:, 2] > eye[2] - 0.01)
-        verts[:, 2] -= dent * np.maximum(verts[:, 2] - (eye[2] - 0.003), 0.0)
-    n = rows * cols
-    faces = [grid_faces(rows, cols, wrap=True)]
-    bottom, top = np.arange(cols), np.arange(cols) + n - cols
-    faces.append(np.stack([bottom, np.roll(bottom, -1), np.full(cols, n)], 1))
-    faces.append(np.stack([top, np.roll(top, -1), np.full(cols, n + 1)], 1))
-    faces = orient_outward(verts, np.concatenate(faces), HEAD_CENTER)
-    p = _head_rigid(part("skin", verts, faces, np.zeros(0), _skin_colors(verts)))
-    p.deltas = _skin_deltas(verts)
-    return p
-
-
-def _skin_colors(p: np.ndarray) -> np.ndarray:
-    """Skin tinted as faces are: warmer cheeks, nose and ears; shaded sockets and a soft lip line."""
-    skin, blush, socket = (np.array(COLORS[k]) for k in ("skin", "blush", "socket"))
-    front = smoothstep(HEAD_CENTER[2], HEAD_CENTER[2] + 0.05, p[:, 2])
-    cheeks = sum(_gauss(p, s * 0.047, 1.59, 0.022, 0.02) for s in (1, -1)) * front
-    nose = _gauss(p, 0.0, 1.595, 0.012, 0.012) * front
-    sockets = sum(_gauss(p, e[0], e[1] + 0.004, 0.02, 0.017) for e in EYES) * front
-    chin = _gauss(p, 0.0, MOUTH_Y - 0.028, 0.03, 0.012) * front
-    color = skin + np.clip(0.55 * cheeks + 0.4 * nose + 0.2 * chin, 0, 1)[:, None] * (blush - skin)
-    return color + np.clip(0.75 * sockets, 0, 1)[:, None] * (socket - skin)
-
-
-def _skin_deltas(p: np.ndarray) -> dict[str, np.ndarray]:
-    """Morph targets of the face's skin: the lower face rides the jaw; cheeks, chin and the
-    corners follow the lips."""
-    front = smoothstep(HEAD_CENTER[2] - 0.03, HEAD_CENTER[2] + 0.03, p[:, 2])
-    jaw = smoothstep(MOUTH_Y - 0.002, MOUTH_Y - 0.011, p[:, 1]) * front
-    out: dict[str, np.ndarray] = {
-        "jawOpen": jaw[:, None] * jaw_delta(p),
-        "jawForward": jaw[:, None] * [0, 0, 0.008],
-        "jawLeft": jaw[:, None] * [0.008, 0, 0],
-        "jawRight": jaw[:, None] * [-0.008, 0, 0],
-    }
-    # everything the lips pull stays within the lower face around the mouth
-    window = front * smoothstep(0.062, 0.045, np.abs(p[:, 0])) * smoothstep(MOUTH_Y + 0.02, MOUTH_Y + 0.01, p[:, 1])
-    near_mouth = np.exp(-((p[:, 0] / 0.028) ** 2 + ((p[:, 1] - MOUTH_Y) / 0.016) ** 2)) * window
-    chin = _gauss(p, 0.0, MOUTH_Y - 0.026, 0.022, 0.014) * front
-    out["mouthLeft"] = near_mouth[:, None] * [0.006, 0, 0]
-    out["mouthRight"] = near_mouth[:, None] * [-0.006, 0, 0]
-    out["mouthPucker"] = near_mouth[:, None] * np.stack([-0.3 * p[:, 0], np.zeros(len(p)), np.full(len(p), 0.004)], 1)
-    out["mouthShrugLower"] = chin[:, None] * [0, 0.003, 0.002]
-    out["mouthRollLower"] = chin[:, None] * [0, 0.001, 0.001]
-    out["mouthRollUpper"] = _gauss(p, 0.0, MOUTH_Y + 0.01, 0.02, 0.008)[:, None] * front[:, None] * [0, -0.0008, 0.001]
-    out["cheekPuff"] = np.zeros((len(p), 3))
-    for side, sgn in (("Left", 1.0), ("Right", -1.0)):
-        corner = _gauss(p, sgn * 0.028, MOUTH_Y + 0.002, 0.013, 0.012) * window
-        out[f"mouthSmile{side}"] = corner[:, None] * [sgn * 0.004, 0.006, -0.002]
-        out[f"mouthFrown{side}"] = corner[:, None] * [0, -0.005, 0]
-        out[f"mouthStretch{side}"] = corner[:, None] * [sgn * 0.005, -0.001, -0.001]
-        out[f"mouthDimple{side}"] = corner[:, None] * [sgn * 0.001, 0, -0.003]
-        cheek = _gauss(p, sgn * 0.045, MOUTH_Y + 0.012, 0.02, 0.02) * front
-        out["cheekPuff"] += cheek[:, None] * [sgn * 0.008, 0, 0.004]
-        squint = _gauss(p, sgn * 0.042, EYES[0][1] - 0.03, 0.02, 0.014) * front
-        out[f"cheekSquint{side}"] = squint[:, None] * [0, 0.004, 0.001]
-        nose = _gauss(p, sgn * 0.012, 1.605, 0.012, 0.012) * front
-        out[f"noseSneer{side}"] = nose[:, None] * [0, 0.003, 0.001]
-    return out
-
-
-# ---------------------------------------------------------------------------------------- mouth
-
-
-def _mouth_rig_deltas(p: np.ndarray, up: np.ndarray, lo: np.ndarray, xn: np.ndarray) -> dict[str, np.ndarray]:
-    """Morph targets shared by the lips and the mouth's inside.
-
-    ``up``/``lo`` say how much a vertex belongs to the upper or lower lip, ``xn`` is x across the
-    mouth normalised to [-1, 1]; lips and the inside then open, round and smile together.
-    """
-    zero = np.zeros(len(p))
-    lo_c, up_c = lo[:, None], up[:, None]
-    jaw = jaw_delta(p)
-    left, right = smoothstep(0.3, 0.95, xn)[:, None], smoothstep(-0.3, -0.95, xn)[:, None]
-    half_l, half_r = smoothstep(-0.2, 0.6, xn)[:, None], smoothstep(0.2, -0.6, xn)[:, None]
-    narrow = np.stack([-p[:, 0], zero, zero], 1)
-    press = lo_c * [0, 0.0013, 0.0005] + up_c * [0, -0.0013, 0.0005]
-    return {
-        "jawOpen": lo_c * jaw,
-        "jawForward": lo_c * [0, 0, 0.008],
-        "jawLeft": lo_c * [0.008, 0, 0],
-        "jawRight": lo_c * [-0.008, 0, 0],
-        "mouthClose": -0.9 * lo_c * jaw + up_c * [0, -0.0015, 0],
-        "mouthFunnel": 0.25 * narrow + up_c * [0, 0.006, 0.006] + lo_c * [0, -0.007, 0.006],
-        "mouthPucker": 0.45 * narrow + np.stack([zero, -0.3 * (p[:, 1] - MOUTH_Y), np.full(len(p), 0.010)], 1),
-        "mouthLeft": np.tile([0.008, 0, -0.001], (len(p), 1)),
-        "mouthRight": np.tile([-0.008, 0, -0.001], (len(p), 1)),
-        "mouthSmileLeft": left * [0.005, 0.007, -0.003],
-        "mouthSmileRight": right * [-0.005, 0.007, -0.003],
-        "mouthFrownLeft": left * [0.001, -0.006, 0],
-        "mouthFrownRight": right * [-0.001, -0.006, 0],
-        "mouthDimpleLeft": left * [0.002, 0.0005, -0.004],
-        "mouthDimpleRight": right * [-0.002, 0.0005, -0.004],
-        "mouthStretchLeft": left * [0.007, -0.001, -0.002],
-        "mouthStretchRight": right * [-0.007, -0.001, -0.002],
-        "mouthRollLower": lo_c * [0, 0.0025, -0.0045],
-        "mouthRollUpper": up_c * [0, -0.0025, -0.0045],
-        "mouthShrugLower": lo_c * [0, 0.003, 0.002],
-        "mouthShrugUpper": up_c * [0, 0.0025, 0.0015],
-        "mouthPressLeft": half_l * press,
-        "mouthPressRight": half_r * press,
-        "mouthLowerDownLeft": lo_c * smoothstep(-0.5, 0.6, xn)[:, None] * [0, -0.006, 0],
-        "mouthLowerDownRight": lo_c * smoothstep(0.5, -0.6, xn)[:, None] * [0, -0.006, 0],
-        "mouthUpperUpLeft": up_c * smoothstep(-0.5, 0.6, xn)[:, None] * [0, 0.005, 0],
-        "mouthUpperUpRight": up_c * smoothstep(0.5, -0.6, xn)[:, None] * [0, 0.005, 0],
-    }
+from convodrive.motion.skeleton import NUM_JOINTS, REST_POSITIONS
 
 
 def torus_faces(nu: int, nv: int) -> np.ndarray:
@@ -265,10 +72,10 @@ def _lips() -> Part:
     # a little darker where the lips meet, lighter on their fullest part
     inner = np.repeat(np.cos(vv)[None, :] < -0.3, nu, 0).ravel()
     colors = np.where(inner[:, None], np.array(COLORS["lips"]) * 0.8, COLORS["lips"])
-    p = _head_rigid(part("lips", verts, faces, np.zeros(0), colors))
+    p = head_rigid(part("lips", verts, faces, np.zeros(0), colors))
     s = np.repeat(su, nv)
     up, lo = np.maximum(s, 0) ** 0.7, np.maximum(-s, 0) ** 0.7
-    p.deltas = _mouth_rig_deltas(verts, up, lo, np.repeat(cu, nv))
+    p.deltas = mouth_rig_deltas(verts, up, lo, np.repeat(cu, nv))
     return p
 
 
@@ -285,9 +92,9 @@ def _mouth_inside() -> list[Part]:
     faces = orient_outward(verts, grid_faces(ns, nx, wrap=False), verts - [0, 0, 0.01])
     depth = np.repeat((1 - s) / 2, nx)[:, None]  # the floor of the mouth shows the tongue's colour
     colors = np.array(COLORS["mouth"]) + 0.35 * depth * (np.array(COLORS["tongue"]) - COLORS["mouth"])
-    inside = _head_rigid(part("mouth", verts, faces, np.zeros(0), colors))
+    inside = head_rigid(part("mouth", verts, faces, np.zeros(0), colors))
     sv = np.repeat(s, nx)
-    inside.deltas = _mouth_rig_deltas(
+    inside.deltas = mouth_rig_deltas(
         verts, (1 + sv) / 2 * prof.ravel(), (1 - sv) / 2 * prof.ravel(), x.ravel() / MOUTH_HALF_WIDTH
     )
     parts = [inside]
@@ -298,16 +105,16 @@ def _mouth_inside() -> list[Part]:
         gz = surface_z(gx, MOUTH_Y) + (0.0022 if lower else 0.0028)
         verts = np.stack([gx, gy, gz], -1).reshape(-1, 3)
         faces = orient_outward(verts, grid_faces(2, 12, wrap=False), verts - [0, 0, 0.01])
-        teeth = _head_rigid(part("teeth", verts, faces, np.zeros(0), COLORS["teeth"]))
+        teeth = head_rigid(part("teeth", verts, faces, np.zeros(0), COLORS["teeth"]))
         if lower:
             ones = np.ones(len(verts))
-            deltas = _mouth_rig_deltas(verts, 0 * ones, ones, verts[:, 0] / MOUTH_HALF_WIDTH)
+            deltas = mouth_rig_deltas(verts, 0 * ones, ones, verts[:, 0] / MOUTH_HALF_WIDTH)
             teeth.deltas = {k: deltas[k] for k in ("jawOpen", "jawForward", "jawLeft", "jawRight")}
         parts.append(teeth)
     # the tongue lies behind the mouth's lens until tongueOut brings it out between the lips
     sz = float(surface_z(0.0, MOUTH_Y))
     v, f = ellipsoid(np.array([0.0, MOUTH_Y - 0.004, sz - 0.022]), np.array([0.016, 0.0045, 0.02]), 8, 14)
-    tongue = _head_rigid(part("mouth", v, f, np.zeros(0), COLORS["tongue"]))
+    tongue = head_rigid(part("mouth", v, f, np.zeros(0), COLORS["tongue"]))
     tip = smoothstep(sz - 0.03, sz - 0.004, v[:, 2])[:, None]
     tongue.deltas = {
         "jawOpen": jaw_delta(v),
@@ -420,7 +227,7 @@ def _lids() -> list[Part]:
             else:
                 colors = np.where((t > 0.95)[:, None], np.array(COLORS["blush"]) * 0.95, skin)
             faces = orient_outward(verts, grid_faces(rows, cols, wrap=False), center)
-            p = _head_rigid(part("skin", verts, faces, np.zeros(0), colors))
+            p = head_rigid(part("skin", verts, faces, np.zeros(0), colors))
             for channel, (d_up, d_lo, d_psi) in _LID_MOVES.items():
                 edge = rest_edge + np.radians(d_up if upper else d_lo)
                 shifted = psi + sgn * np.radians(d_psi) * t  # the moving edge follows the gaze sideways
@@ -449,13 +256,13 @@ def _nose() -> list[Part]:
         caps=(False, True),
         cap_length=0.8,
     )
-    colors = _skin_colors(v)
-    nose = _head_rigid(part("skin", v, f, np.zeros(0), colors))
+    colors = skin_colors(v)
+    nose = head_rigid(part("skin", v, f, np.zeros(0), colors))
     parts = [nose]
     for sgn in (1, -1):
         center = np.array([sgn * 0.0105, 1.5875, float(surface_z(sgn * 0.0105, 1.5875)) + 0.002])
         v, f = ellipsoid(center, np.array([0.0052, 0.0048, 0.0064]), 8, 12)
-        parts.append(_head_rigid(part("skin", v, f, np.zeros(0), _skin_colors(v) * 0.97)))
+        parts.append(head_rigid(part("skin", v, f, np.zeros(0), skin_colors(v) * 0.97)))
     for p in parts:
         p.deltas = {f"noseSneer{s}": np.tile([0, 0.002, 0.0005], (len(p.verts), 1)) for s in ("Left", "Right")}
     return parts
@@ -469,9 +276,9 @@ def _ears() -> list[Part]:
         tilt = np.radians(-12)
         c, s = np.cos(tilt), np.sin(tilt)
         v = v @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]]).T + center
-        bowl = _gauss(v - [0, 0, 0], sgn * 0.082, 1.626, 0.005, 0.012) * (sgn * (v[:, 0] - center[0]) > 0)
+        bowl = gauss(v - [0, 0, 0], sgn * 0.082, 1.626, 0.005, 0.012) * (sgn * (v[:, 0] - center[0]) > 0)
         colors = np.array(COLORS["blush"]) * (1 - 0.25 * bowl)[:, None]
-        parts.append(_head_rigid(part("skin", v, f, np.zeros(0), colors)))
+        parts.append(head_rigid(part("skin", v, f, np.zeros(0), colors)))
     return parts
 
 
@@ -483,7 +290,7 @@ def _brows() -> list[Part]:
         y = EYES[0][1] + 0.021 + 0.0045 * np.sin(np.pi * tn * 0.9)
         keys = np.stack([x, y, surface_z(x, y) + 0.0015], 1)
         v, f, _ = loft(keys, np.full(7, 0.0018), 0.0036 - 0.0016 * tn, np.array([0, 1.0, 0]), 6, sub=2)
-        brow = _head_rigid(part("hair", v, f, np.zeros(0), COLORS["hair"]))
+        brow = head_rigid(part("hair", v, f, np.zeros(0), COLORS["hair"]))
         t = np.clip((np.abs(v[:, 0]) - 0.010) / 0.037, 0.0, 1.0)
         inner, outer = (1 - t) ** 1.5, t**1.5
         brow.deltas = {
@@ -539,12 +346,12 @@ def _hair() -> Part:
     strands = np.concatenate([strands, strands[-1:]])
     shade = strands * np.concatenate([0.95 + 0.1 * top, 0.8 * np.ones((1, cols))])
     colors = np.array(COLORS["hair"]) * shade.reshape(-1, 1)
-    return _head_rigid(part("hair", verts, faces, np.zeros(0), colors))
+    return head_rigid(part("hair", verts, faces, np.zeros(0), colors))
 
 
 def face_parts() -> list[Part]:
     """Every part of the head, morph targets attached."""
-    return [_head(), _lips(), *_mouth_inside(), *_eyes(), *_lids(), *_nose(), *_ears(), *_brows(), _hair()]
+    return [head_part(), _lips(), *_mouth_inside(), *_eyes(), *_lids(), *_nose(), *_ears(), *_brows(), _hair()]
 
 
 def face_landmarks() -> dict[str, np.ndarray]:

@@ -125,7 +125,7 @@ class RigPoser:
         ]
         self._morph_columns = np.array([BLENDSHAPE_INDEX[n] for n in rig.morph_names], dtype=int)
         self._jaw_morph = rig.morph_names.index("jawOpen") if "jawOpen" in rig.morph_names else -1
-        self._deltas = rig.morph_deltas.reshape(len(rig.morph_names), -1).astype(np.float32)
+        self._deltas = rig.morph_deltas.reshape(len(rig.morph_names), 3 * len(rig.morph_index)).astype(np.float32)
         self._rest = rig.rest.astype(np.float32)
         self._weights = rig.weights.astype(np.float32)
         self._faces = np.concatenate([s.faces.astype(np.int64) + s.start for s in rig.surfaces])

@@ -85,8 +85,7 @@ class LearnedGenerator(Generator):
                 f"feature layout {layout.get('version')} ({layout.get('dim')} dims) is not this convodrive's {rep.LAYOUT_VERSION} ({rep.FEATURE_DIM})",
             )
         self.mel_spec = MelSpec.from_dict(features.get("corpus", {}).get("audio_features", {}))
-        norm = self.folder.arrays("normalisation.npz")
-        self.stats = rep.FeatureStats.from_arrays(norm)
+        self.stats = self._normalisation()
         self.session_options = SessionOptions(threads=self.options.threads, device=self.options.device)
         self.plan = self.window_plan()
         self._silence = log_mel(np.zeros((2 * self.mel_spec.window, 2), np.float32), 1, self.mel_spec)[0]
@@ -110,8 +109,25 @@ class LearnedGenerator(Generator):
         return None
 
     def graph(self, name: str) -> Graph:
-        """A session on one of the folder's graphs, with this generator's thread and device settings."""
-        return Graph(self.folder.graph_path(name), self.session_options)
+        """A session on one of the folder's graphs, with this generator's thread and device settings;
+        its inputs and outputs must be the ones model.json describes."""
+        graph = Graph(self.folder.graph_path(name), self.session_options)
+        self.folder.check_graph(name, graph.input_names, graph.output_names)
+        return graph
+
+    def _normalisation(self) -> rep.FeatureStats:
+        """The folder's feature statistics: ``mean`` and ``std`` of the layout's width, finite."""
+        norm = self.folder.arrays("normalisation.npz")
+        for key in ("mean", "std") + (("count",) if "count" in norm else ()):
+            value = norm.get(key)
+            if value is None or value.shape != (rep.FEATURE_DIM,) or value.dtype.kind not in "fiu":
+                shape = "missing" if value is None else f"{value.dtype} {value.shape}"
+                raise InputFileError(
+                    self.folder.path / "normalisation.npz", f"'{key}' must be ({rep.FEATURE_DIM},) numbers, got {shape}"
+                )
+            if not np.all(np.isfinite(value)):
+                raise InputFileError(self.folder.path / "normalisation.npz", f"'{key}' holds NaN or infinite values")
+        return rep.FeatureStats.from_arrays(norm)
 
     # -- the contract ---------------------------------------------------------------------------
     @property

@@ -4,7 +4,10 @@ A model folder holds ONNX graphs, NumPy arrays (normalisation statistics, codebo
 ``model.json`` that describes them: the model and preset, its architecture, the feature spec,
 the training corpus, and the sha256 of every file it names. Loading verifies each hash, so a
 missing, truncated or swapped file is one line naming it, never a confusing ONNX Runtime error
-halfway through a run.
+halfway through a run. The structure of ``model.json`` is checked as well (a hash proves a file
+is the one described, not that the description is sound): the tables are objects, every graph
+names a hashed file, a missing architecture entry or a graph whose inputs are not the ones
+described is one line naming the folder or file, never a traceback.
 """
 
 from __future__ import annotations
@@ -12,6 +15,8 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import zipfile
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +35,17 @@ def sha256_file(path: Path) -> str:
         for block in iter(lambda: fh.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+class Architecture(dict[str, Any]):
+    """``model.json``'s ``architecture``: a key it lacks is an ``InputFileError`` naming the file."""
+
+    def __init__(self, source: Path, entries: dict[str, Any]) -> None:
+        super().__init__(entries)
+        self.source = source
+
+    def __missing__(self, key: str) -> Any:
+        raise InputFileError(self.source, f"architecture has no '{key}' (the file was edited or is not this model's)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,12 +72,35 @@ class ModelFolder:
             )
         return self.path / graphs[name]["file"]
 
+    def require_graphs(self, names: Iterable[str], hint: str) -> None:
+        """An ``InputFileError`` naming the folder when it lacks any of ``names``: an export of an
+        earlier training stage; ``hint`` says which stage to export."""
+        missing = [g for g in names if g not in self.graphs]
+        if missing:
+            raise InputFileError(
+                self.path, f"holds a '{self.spec.get('stage')}' stage export without {', '.join(missing)}: {hint}"
+            )
+
+    def check_graph(self, name: str, inputs: Sequence[str], outputs: Sequence[str]) -> None:
+        """An ``InputFileError`` naming the file when graph ``name``'s inputs or outputs are not the
+        ones ``model.json`` describes (graph files swapped and their hashes recomputed)."""
+        entry = self.graphs[name]
+        for what, found in (("inputs", list(inputs)), ("outputs", list(outputs))):
+            if what in entry and list(entry[what]) != found:
+                raise InputFileError(
+                    self.path / entry["file"],
+                    f"is not graph '{name}': its {what} are {', '.join(found)}, model.json describes {', '.join(entry[what])}",
+                )
+
     def arrays(self, name: str) -> dict[str, np.ndarray]:
         """The arrays of the ``.npz`` file ``name`` (e.g. ``normalisation.npz``), loaded without pickles."""
         if name not in self.spec["files"]:
             raise InputFileError(self.path / MODEL_JSON, f"names no file '{name}'")
-        with np.load(self.path / name, allow_pickle=False) as data:
-            return {key: data[key] for key in data.files}
+        try:
+            with np.load(self.path / name, allow_pickle=False) as data:
+                return {key: data[key] for key in data.files}
+        except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
+            raise InputFileError(self.path / name, f"is not a readable .npz ({exc.__class__.__name__})") from None
 
 
 def load_model_folder(path: str | Path) -> ModelFolder:
@@ -92,7 +131,23 @@ def load_model_folder(path: str | Path) -> ModelFolder:
             raise InputFileError(file, "missing from the model folder")
         if sha256_file(file) != expected:
             raise InputFileError(file, "does not match the sha256 in model.json (truncated, changed or replaced)")
-    for name, graph in spec.get("graphs", {}).items():
-        if graph.get("file") not in files:
-            raise InputFileError(meta_path, f"graph '{name}' names a file that has no sha256")
+    _check_structure(meta_path, spec)
+    spec["architecture"] = Architecture(meta_path, spec.get("architecture", {}))
     return ModelFolder(folder, spec)
+
+
+def _check_structure(meta_path: Path, spec: dict[str, Any]) -> None:
+    """The tables a generator reads are objects, and every graph names a hashed file."""
+    if not isinstance(spec["model"], str):
+        raise InputFileError(meta_path, "'model' must be a name")
+    for key in ("graphs", "architecture", "features"):
+        if not isinstance(spec.get(key, {}), dict):
+            raise InputFileError(meta_path, f"'{key}' must be an object, not {type(spec[key]).__name__}")
+    for name, graph in spec.get("graphs", {}).items():
+        if not isinstance(graph, dict) or not isinstance(graph.get("file"), str):
+            raise InputFileError(meta_path, f"graph '{name}' must be an object naming its file")
+        if graph["file"] not in spec["files"]:
+            raise InputFileError(meta_path, f"graph '{name}' names a file that has no sha256")
+        for what in ("inputs", "outputs"):
+            if what in graph and not (isinstance(graph[what], list) and all(isinstance(n, str) for n in graph[what])):
+                raise InputFileError(meta_path, f"graph '{name}' {what} must be a list of names")

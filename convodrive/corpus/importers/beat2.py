@@ -15,7 +15,6 @@ so the 52 face channels are masked; jaw and eyes come from the skeleton.
 from __future__ import annotations
 
 import csv
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +24,7 @@ from convodrive.corpus.importers.common import (
     ALL_FACE,
     SMPLX_JOINTS,
     pose_from_joints,
+    read_numeric_npz,
     read_speaker_audio,
     recording,
     upright_root,
@@ -73,15 +73,15 @@ def _read_splits(path: Path) -> dict[str, str]:
 
 def load(item: tuple[Path, Path, str | None], options: ImportOptions) -> list[Recording]:
     npz, wav, split = item
-    try:
-        with np.load(npz, allow_pickle=False) as data:
-            if "poses" not in data.files:
-                raise InputFileError(npz, f"no 'poses' array (has {', '.join(data.files) or 'nothing'})")
-            poses = np.asarray(data["poses"])
-            trans = np.asarray(data["trans"]) if "trans" in data.files else np.zeros((len(poses), 3))
-            rate = float(data["mocap_frame_rate"]) if "mocap_frame_rate" in data.files else float(FPS)
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
-        raise InputFileError(npz, f"not a readable BEAT2 .npz ({exc.__class__.__name__})") from None
+    data, names = read_numeric_npz(npz, "BEAT2 .npz")
+    if "poses" not in data:
+        raise InputFileError(npz, f"no numeric 'poses' array (has {', '.join(names) or 'nothing'})")
+    poses = data["poses"]
+    trans = data["trans"] if "trans" in data else np.zeros((len(poses), 3))
+    given = data.get("mocap_frame_rate", np.array(float(FPS)))
+    if given.size != 1:
+        raise InputFileError(npz, f"mocap_frame_rate has shape {given.shape}, expected one number")
+    rate = float(given.reshape(-1)[0])
     if not 1.0 <= rate <= 1000.0:
         raise InputFileError(npz, f"mocap_frame_rate {rate:g} is not a frame rate")
     if trans.shape != (len(poses), 3):

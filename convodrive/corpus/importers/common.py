@@ -9,6 +9,7 @@ rotations carry over unchanged.
 from __future__ import annotations
 
 import dataclasses
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +35,11 @@ SMPLH_JOINTS: tuple[str, ...] = (
 """SMPL-H's 52 joints: SMPL-X's body without jaw and eyes, then the 15 joints of each hand."""
 HAND_JOINTS: dict[str, tuple[str, ...]] = {side: tuple(f"{side}_{f}" for f in _FINGERS) for side in ("left", "right")}
 
+MAX_ARRAY_BYTES = 1 << 30
+"""A source array larger than this (1 GiB) is refused: a clip's motion is a few MB; a ``.npy``
+header can claim any shape, and loading it first would allocate what it claims."""
+_HEADER_READERS = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+
 ALL_FACE = tuple(ARKIT_NAMES)
 """A source with no ARKit channels (FLAME expressions, or no face at all) lists these as missing."""
 LENGTH_TOLERANCE_FRAMES = 6
@@ -47,12 +53,46 @@ def pose_from_joints(values: np.ndarray, names: tuple[str, ...], source: Path) -
     values = np.asarray(values, np.float64)
     if values.ndim != 2 or values.shape[1] != 3 * len(names):
         raise InputFileError(source, f"pose array has shape {values.shape}, expected (frames, {3 * len(names)})")
+    if len(values) == 0:
+        raise InputFileError(source, "holds no frames")
     if not np.all(np.isfinite(values)):
         raise InputFileError(source, "pose array holds NaN or infinite values")
     pose = np.zeros((len(values), NUM_JOINTS, 3), np.float64)
     pose[:, [JOINT_INDEX[n] for n in names]] = values.reshape(len(values), len(names), 3)
     missing = tuple(n for n in JOINT_NAMES if n not in set(names))
     return pose, missing
+
+
+def read_numeric_npz(path: Path, what: str = ".npz") -> tuple[dict[str, np.ndarray], list[str]]:
+    """The numeric arrays of the ``.npz`` (``what``, for messages) at ``path`` (strings and objects are left unread) and
+    the names of all its entries. Each ``.npy`` header is read first: an array claiming more than
+    its entry holds or than ``MAX_ARRAY_BYTES`` is an ``InputFileError``, never an allocation."""
+    arrays: dict[str, np.ndarray] = {}
+    try:
+        with zipfile.ZipFile(path) as zf:
+            infos = [i for i in zf.infolist() if i.filename.endswith(".npy")]
+            for info in infos:
+                with zf.open(info) as fh:
+                    version = np.lib.format.read_magic(fh)
+                    if version not in _HEADER_READERS:
+                        raise ValueError(f".npy version {version}")
+                    shape, fortran, dtype = _HEADER_READERS[version](fh)
+                    if dtype.kind not in "biuf":
+                        continue
+                    claimed = int(np.prod(shape, dtype=object)) * dtype.itemsize
+                    name = info.filename[: -len(".npy")]
+                    if claimed > min(info.file_size, MAX_ARRAY_BYTES):
+                        raise InputFileError(
+                            path,
+                            f"array {name!r} claims shape {shape} ({claimed} bytes) but its entry holds {info.file_size}"
+                            if claimed > info.file_size
+                            else f"array {name!r} of shape {shape} is larger than {MAX_ARRAY_BYTES >> 30} GiB",
+                        )
+                    data = np.frombuffer(bytearray(fh.read(claimed)), dtype)
+                    arrays[name] = data.reshape(shape, order="F" if fortran else "C")
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
+        raise InputFileError(path, f"not a readable {what} ({exc.__class__.__name__})") from None
+    return arrays, [i.filename[: -len(".npy")] for i in infos]
 
 
 def upright_root(pose: np.ndarray, translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

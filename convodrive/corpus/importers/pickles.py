@@ -5,6 +5,11 @@ file can run any code. This one resolves only what data needs: NumPy arrays, dty
 and ``collections.OrderedDict``; plain containers, numbers and strings need no lookup at all.
 Anything else is refused with one line naming the file and the callable it asked for.
 
+Containers are bounded too: a few hundred bytes can build a list that holds itself, or shared
+references that expand to 2^60 paths for any code walking them (``drop_skipped``, ``np.asarray``).
+``load_pickle`` measures the structure once with a memo and refuses one nested deeper than
+``MAX_DEPTH`` or holding more than ``MAX_ITEMS`` items once expanded.
+
 One exception, because SHOW's files need it: they keep their fitting losses as torch tensors
 (``losses_to_log``). A name from ``torch`` resolves to ``Skipped``, an inert placeholder that
 records nothing and runs nothing, so such values are dropped without importing torch.
@@ -43,8 +48,19 @@ class Skipped:
         return "<skipped>"
 
 
+MAX_DEPTH = 32
+"""Containers nested deeper than this are refused: SHOW's pickles nest two or three levels."""
+MAX_ITEMS = 1_000_000
+"""Items (counting shared references once per path) above this are refused: SHOW's pickles hold
+a few dozen entries, their bulk is in arrays, which count one each."""
+
+
 class _Refused(pickle.UnpicklingError):
     """The pickle named a callable outside the allowed set."""
+
+
+class _Unbounded(Exception):
+    """The pickle's containers cannot be walked in bounded time and memory."""
 
 
 class _Restricted(pickle.Unpickler):
@@ -67,7 +83,7 @@ def load_pickle(path: Path) -> Any:
     except OSError as exc:
         raise InputFileError(path, f"cannot read ({exc.strerror})") from None
     try:
-        return _Restricted(io.BytesIO(data)).load()
+        value = _Restricted(io.BytesIO(data)).load()
     except _Refused as exc:
         raise InputFileError(
             path, f"refused: the pickle asks for {exc}; only arrays and plain containers are read"
@@ -76,10 +92,48 @@ def load_pickle(path: Path) -> Any:
         raise InputFileError(path, f"not a readable pickle ({exc})") from None
     except (EOFError, ValueError, TypeError, AttributeError, IndexError, KeyError, MemoryError) as exc:
         raise InputFileError(path, f"truncated or corrupt pickle ({exc.__class__.__name__})") from None
+    problem = _unbounded(value)
+    if problem:
+        raise InputFileError(path, f"refused: {problem}")
+    return value
+
+
+def _unbounded(value: Any) -> str | None:
+    """Why ``value`` cannot be walked path by path in bounded time, or None: each container is
+    measured once (memo by id), so shared references cost nothing here."""
+    expanded: dict[int, int] = {}
+    open_now: set[int] = set()
+
+    def size(v: Any, depth: int) -> int:
+        if not isinstance(v, (dict, list, tuple)):
+            return 1
+        key = id(v)
+        if key in expanded:
+            return expanded[key]
+        if key in open_now:
+            raise _Unbounded("a container holds itself")
+        if depth > MAX_DEPTH:
+            raise _Unbounded(f"containers nested deeper than {MAX_DEPTH}")
+        open_now.add(key)
+        items = v.values() if isinstance(v, dict) else v
+        total = 1
+        for item in items:
+            total += size(item, depth + 1)
+            if total > MAX_ITEMS:
+                raise _Unbounded(f"more than {MAX_ITEMS} items once shared references are expanded")
+        open_now.discard(key)
+        expanded[key] = total
+        return total
+
+    try:
+        size(value, 0)
+    except _Unbounded as exc:
+        return str(exc)
+    return None
 
 
 def drop_skipped(value: Any) -> tuple[Any, list[str]]:
-    """``value`` without the ``Skipped`` placeholders (dict entries and list items), and the keys dropped."""
+    """``value`` (bounded by ``load_pickle``) without the ``Skipped`` placeholders (dict entries and list items), and the keys dropped."""
     dropped: list[str] = []
 
     def walk(v: Any, where: str) -> Any:

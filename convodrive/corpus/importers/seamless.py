@@ -18,7 +18,6 @@ line listing the keys it has. SMPL-H has no jaw or eye joints and no ARKit face:
 from __future__ import annotations
 
 import re
-import zipfile
 from collections import defaultdict
 from pathlib import Path
 
@@ -26,7 +25,14 @@ import numpy as np
 
 from convodrive import FPS
 from convodrive.audio.source import AudioSource, ChannelMap, DyadicAudio
-from convodrive.corpus.importers.common import ALL_FACE, SMPLH_JOINTS, pose_from_joints, recording, upright_root
+from convodrive.corpus.importers.common import (
+    ALL_FACE,
+    SMPLH_JOINTS,
+    pose_from_joints,
+    read_numeric_npz,
+    recording,
+    upright_root,
+)
 from convodrive.corpus.importers.options import ImportOptions
 from convodrive.corpus.manifest import safe_id
 from convodrive.corpus.writer import Recording
@@ -74,28 +80,28 @@ def _first(data: dict[str, np.ndarray], field: str) -> np.ndarray | None:
 def read_smplh(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
     """(T, 52 * 3) SMPL-H axis-angles, (T, 3) translation and the frame rate (30 when not given),
     through ``KEYS``."""
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            data = {k: np.asarray(npz[k]) for k in npz.files if npz[k].dtype.kind in "fiu"}
-            names = list(npz.files)
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
-        raise InputFileError(path, f"not a readable .npz ({exc.__class__.__name__})") from None
+    data, names = read_numeric_npz(path)
     given = _first(data, "fps")
-    fps = float(np.asarray(given).reshape(-1)[0]) if given is not None else float(FPS)
+    if given is not None and given.size != 1:
+        raise InputFileError(path, f"frame rate has shape {given.shape}, expected one number")
+    fps = float(given.reshape(-1)[0]) if given is not None else float(FPS)
     if not 1.0 <= fps <= 1000.0:
         raise InputFileError(path, f"frame rate {fps:g} is not a frame rate")
     poses = _first(data, "poses")
-    if poses is None:
-        parts = [_first(data, f) for f in ("global_orient", "body_pose", "left_hand_pose", "right_hand_pose")]
-        if any(p is None for p in parts):
-            raise InputFileError(
-                path, f"no SMPL-H pose arrays under the names tried (see KEYS); it has {', '.join(names) or 'nothing'}"
-            )
-        n = len(parts[0])  # type: ignore[arg-type]
-        poses = np.concatenate([np.asarray(p, np.float64).reshape(n, -1) for p in parts if p is not None], axis=1)
-    poses = np.asarray(poses, np.float64).reshape(len(poses), -1)
+    parts = [_first(data, f) for f in ("global_orient", "body_pose", "left_hand_pose", "right_hand_pose")]
+    if poses is None and any(p is None for p in parts):
+        raise InputFileError(
+            path, f"no SMPL-H pose arrays under the names tried (see KEYS); it has {', '.join(names) or 'nothing'}"
+        )
     trans = _first(data, "translation")
-    trans = np.zeros((len(poses), 3)) if trans is None else np.asarray(trans, np.float64).reshape(-1, 3)
+    try:
+        if poses is None:
+            n = len(parts[0])  # type: ignore[arg-type]
+            poses = np.concatenate([np.asarray(p, np.float64).reshape(n, -1) for p in parts if p is not None], axis=1)
+        poses = np.asarray(poses, np.float64).reshape(len(poses), -1)
+        trans = np.zeros((len(poses), 3)) if trans is None else np.asarray(trans, np.float64).reshape(-1, 3)
+    except (ValueError, TypeError) as exc:  # 0-d arrays, parts of different lengths, (T, 2) translations
+        raise InputFileError(path, f"SMPL-H arrays of mismatched shapes ({exc})") from None
     if len(trans) != len(poses):
         raise InputFileError(path, f"translation has {len(trans)} frames, poses {len(poses)}")
     return poses, trans, fps

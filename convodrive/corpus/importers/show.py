@@ -98,8 +98,11 @@ def load_hand_components(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray |
 def _array(data: dict[str, Any], key: str, path: Path, width: int) -> np.ndarray:
     if key not in data:
         raise InputFileError(path, f"no {key!r} in the pickle (has {', '.join(sorted(map(str, data)))})")
-    value = np.asarray(data[key], np.float64)
-    if value.dtype.kind != "f" or value.size % width or value.ndim < 1:
+    try:
+        value = np.asarray(data[key], np.float64)
+    except (ValueError, TypeError, OverflowError):
+        raise InputFileError(path, f"{key!r} is not an array of numbers (got {type(data[key]).__name__})") from None
+    if value.size % width or value.ndim < 1:
         raise InputFileError(path, f"{key!r} has shape {value.shape}, expected (frames, {width})")
     return value.reshape(len(value), width)
 

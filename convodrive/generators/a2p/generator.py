@@ -37,7 +37,7 @@ from convodrive.neural.autoregressive import KVCache, sample_tokens
 from convodrive.neural.diffusion import consistency_sample, cosine_schedule, ddim_sample, guided, noise_like
 from convodrive.neural.windows import WindowPlan
 from convodrive.plugins.options import option
-from convodrive.plumbing.errors import InputFileError, UserError
+from convodrive.plumbing.errors import UserError
 
 FPS = 30
 GUIDE_REACH = 15
@@ -143,13 +143,7 @@ class A2PGenerator(LearnedGenerator):
     def __init__(self, options: A2POptions | Mapping[str, Any] | None = None) -> None:
         super().__init__(options)
         wanted = GRAPHS + (STUDENT_GRAPHS if self.options.sampler == "distilled" else ())
-        missing = [g for g in wanted if g not in self.folder.graphs]
-        if missing:
-            stage = self.folder.spec.get("stage")
-            raise InputFileError(
-                self.folder.path,
-                f"holds a '{stage}' stage export without {', '.join(missing)}: export the distill stage",
-            )
+        self.folder.require_graphs(wanted, "export the distill stage")
         arch = self.folder.spec["architecture"]
         self.arch = arch
         self.levels, self.span = int(arch["vq_levels"]), int(arch["guide_audio_span"])

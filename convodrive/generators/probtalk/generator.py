@@ -37,7 +37,7 @@ from convodrive.motion import representation as rep
 from convodrive.neural.maskgit import maskgit_sample
 from convodrive.neural.windows import WindowPlan
 from convodrive.plugins.options import option
-from convodrive.plumbing.errors import InputFileError, UserError
+from convodrive.plumbing.errors import UserError
 
 MODES: dict[str, tuple[int, int]] = {"file": (180, 30), "live": (48, 36)}
 """Window and context frames of each mode: the paper's 180 and 30; a 12-frame hop for live runs."""
@@ -114,13 +114,7 @@ class ProbTalkGenerator(LearnedGenerator):
 
     def __init__(self, options: ProbTalkOptions | Mapping[str, Any] | None = None) -> None:
         super().__init__(options)
-        missing = [g for g in GRAPHS if g not in self.folder.graphs]
-        if missing:
-            stage = self.folder.spec.get("stage")
-            raise InputFileError(
-                self.folder.path,
-                f"holds a '{stage}' stage export without {', '.join(missing)}: export the predictor or refiner stage",
-            )
+        self.folder.require_graphs(GRAPHS, "export the predictor or refiner stage")
         arch = self.folder.spec["architecture"]
         self.groups, self.codes = int(arch["groups"]), int(arch["codes"])
         self.per_token = 2 ** (len(arch["vq_channels"]) - 1)

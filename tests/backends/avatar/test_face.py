@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from convodrive.backends.avatar.mannequin import MAX_INFLUENCES, build_mannequin
-from convodrive.backends.avatar.mannequin_face import MOUTH_HALF_WIDTH, MOUTH_Y
+from convodrive.backends.avatar.mannequin_head import MOUTH_HALF_WIDTH, MOUTH_Y
 from convodrive.backends.avatar.skinning import RigPoser
 from convodrive.motion.channels import BLENDSHAPE_INDEX
 from convodrive.motion.channels import JAW_OPEN_RAD as JAW_RAD_AT_FULL_OPEN
