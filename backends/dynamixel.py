@@ -137,9 +137,14 @@ class DynamixelBackend(ServoBackend):
             self.bus.disconnect()
             ids = ", ".join(str(m.id) for m in self._motors)
             raise UserError(f"{self.options.port}: no servo answers (ids {ids} at {self.bus.baudrate} baud)")
-        for name in self.names:
-            if name not in answering:
-                self._event("servo_lost", name, "no answer at open")
+        missing = [m for m in self._motors if m.name not in answering]
+        if missing:  # a servo the profile drives must be there, as a Maestro's channel must
+            self.bus.disconnect()
+            raise UserError(
+                f"backends.dynamixel.joints.{missing[0].name}.id: servo {missing[0].id} does not answer on "
+                f"{self.options.port} at {self.bus.baudrate} baud"
+                + (f" (nor {', '.join(str(m.id) for m in missing[1:])})" if len(missing) > 1 else "")
+            )
         self._setup(answering)
 
     def _check_model(self, motor: Motor) -> bool:

@@ -104,6 +104,9 @@ class ServoBackend(Backend):
         self._neutral_error: dict[str, float | None] = {}
         self._hurry = threading.Event()
         self._closed = False
+        self._opened = False
+        """Set once ``_hw_open`` returned: before that no servo was switched on, so ``close``
+        has nothing to ease or switch off (a port that would not open is one error, not two)."""
 
     # ---------------------------------------------------------------- hooks
     @abc.abstractmethod
@@ -163,6 +166,7 @@ class ServoBackend(Backend):
         except ValueError as exc:
             raise UserError(f"backends.{self.name}.joints: {exc}") from None
         self._hw_open()
+        self._opened = True
         present = self._hw_present()
         neutral_raw = raw_map.to_raw(self.guard.neutral).astype(float)
         present = np.where(np.isfinite(present), present, neutral_raw)
@@ -344,7 +348,7 @@ class ServoBackend(Backend):
             self._thread.join(timeout=5.0)
         with self._lock:
             try:
-                if self.guard is not None:
+                if self._opened:
                     if not self._hw_connected():
                         self._reconnect_after = 0.0
                         self._try_reconnect(time.monotonic())
