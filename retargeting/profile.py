@@ -165,6 +165,10 @@ class _Checker:
         value = number_text(value)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             self.fail(key, f"must be a number, got {clip_value(value)}")
+        if isinstance(value, int) and abs(value) > MAX_MAGNITUDE:  # may be too large for a float
+            self.fail(
+                key, f"must be at most {MAX_MAGNITUDE:g} in size, got an integer of {len(str(abs(value)))} digits"
+            )
         if math.isnan(value) or (math.isinf(value) and not (unlimited and value > 0)):
             self.fail(key, f"must be a finite number, got {value}")
         if math.isfinite(value) and abs(value) > MAX_MAGNITUDE:
