@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from convodrive.backends.servo import dynamixel_packet as dp
-from convodrive.backends.servo.dynamixel_emulator import parse_fault, start_emulated_head
+from convodrive.backends.servo.dynamixel_emulator import start_emulated_head
+from convodrive.backends.servo.emulator_faults import parse_fault
 from convodrive.motion.npz import load_clip
 from convodrive.pipeline import DriveRequest, drive
 from convodrive.retargeting import Retargeter, load_profile
