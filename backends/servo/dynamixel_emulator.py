@@ -14,37 +14,18 @@ of its own.
 from __future__ import annotations
 
 import collections
-import dataclasses
 import random
 import threading
 import time
 from collections.abc import Callable, Iterable
 
 from convodrive.backends.servo import dynamixel_packet as dp
-from convodrive.backends.servo.dynamixel_emulated_servo import Clock, EmulatedServo
+from convodrive.backends.servo.dynamixel_emulated_servo import Clock, EmulatedServo, LoggedWrite
 from convodrive.backends.servo.dynamixel_table import encode
 from convodrive.backends.servo.dynamixel_table import model as lookup_model
 from convodrive.backends.servo.emulator_faults import SERVO_FAULTS, Fault
 from convodrive.backends.servo.pty_server import PtyDevice, PtyServer
 from convodrive.plumbing.errors import UserError
-
-
-@dataclasses.dataclass
-class LoggedWrite:
-    """One accepted register write, as the servo saw it (emulator clock)."""
-
-    time: float
-    servo_id: int
-    value: int
-    inst: int = dp.WRITE
-    """The instruction that carried it (WRITE, SYNC_WRITE, BULK_WRITE, ACTION)."""
-    packet: int = 0
-    """The ordinal of the packet that carried it: writes of one SYNC_WRITE share it."""
-
-    @property
-    def tick(self) -> int:
-        """For goal positions: the goal in ticks."""
-        return self.value
 
 
 class DynamixelEmulator(PtyDevice):
