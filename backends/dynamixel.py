@@ -29,13 +29,16 @@ import numpy as np
 from convodrive.backends.servo import dynamixel_table as dt
 from convodrive.backends.servo.dynamixel_bus import DynamixelBus, Motor
 from convodrive.backends.servo.safety import RawMap
-from convodrive.backends.servo.servo_base import PortLost, ServoBackend
+from convodrive.backends.servo.serial_port import PortLost
+from convodrive.backends.servo.servo_base import ServoBackend
 from convodrive.backends.servo.servo_options import DynamixelJoint, DynamixelOptions
 from convodrive.motion.targets import TargetSpec
 from convodrive.plugins.options import PluginOptions
 from convodrive.plumbing.errors import UserError
 
 HEALTH_REGISTERS = ["Present_Position", "Present_Input_Voltage", "Present_Temperature"]
+OPEN_PINGS = 3
+"""Pings a servo gets at open before it counts as missing (and the run is refused)."""
 
 
 def bus_motors(options: DynamixelOptions, names: list[str] | None = None) -> list[Motor]:
@@ -132,15 +135,23 @@ class DynamixelBackend(ServoBackend):
     def _hw_open(self) -> None:
         self.bus = make_bus(self.options, self._motors)
         self.bus.connect()
-        answering = [m.name for m in self._motors if self._check_model(m)]
+        answering = {m.name for m in self._motors if self._check_model(m)}
+        if answering:  # a reply lost on a noisy bus or a busy host is not a missing servo: ask again
+            retry = [m for m in self._motors if m.name not in answering]
+            answering |= {m.name for m in retry if any(self._check_model(m) for _ in range(OPEN_PINGS - 1))}
         if not answering:
             self.bus.disconnect()
             ids = ", ".join(str(m.id) for m in self._motors)
             raise UserError(f"{self.options.port}: no servo answers (ids {ids} at {self.bus.baudrate} baud)")
-        for name in self.names:
-            if name not in answering:
-                self._event("servo_lost", name, "no answer at open")
-        self._setup(answering)
+        missing = [m for m in self._motors if m.name not in answering]
+        if missing:  # a servo the profile drives must be there, as a Maestro's channel must
+            self.bus.disconnect()
+            raise UserError(
+                f"backends.dynamixel.joints.{missing[0].name}.id: servo {missing[0].id} does not answer on "
+                f"{self.options.port} at {self.bus.baudrate} baud"
+                + (f" (nor {', '.join(str(m.id) for m in missing[1:])})" if len(missing) > 1 else "")
+            )
+        self._setup(self.names)
 
     def _check_model(self, motor: Motor) -> bool:
         assert self.bus is not None

@@ -28,7 +28,8 @@ import serial
 
 from convodrive.backends.servo import maestro_protocol as mp
 from convodrive.backends.servo.safety import RawMap
-from convodrive.backends.servo.servo_base import PortLost, ServoBackend, open_error
+from convodrive.backends.servo.serial_port import PortLost, open_error
+from convodrive.backends.servo.servo_base import ServoBackend
 from convodrive.backends.servo.servo_options import MaestroJoint, MaestroOptions
 from convodrive.motion.targets import TargetSpec
 from convodrive.plugins.options import PluginOptions

@@ -11,14 +11,13 @@ inertia so that every joint tracks at about the same natural frequency. Renderin
 equipment: if no headless GL works, or the renderer fails mid-run, physics and the tracking
 report carry on and the report says why there is no video.
 
-Options: ``MujocoOptions`` below (``convodrive plugins mujoco`` lists them). The MJCF is the
+Options: ``mujoco_setup.MujocoOptions`` (``convodrive plugins mujoco`` lists them). The MJCF is the
 option ``model``, else the robot profile's ``model`` (carried by the target spec), else the
 bundled model named like the target.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import os
@@ -29,70 +28,21 @@ from typing import Any
 
 import numpy as np
 
-from convodrive.backends.base import Backend, RobotOptions, Session
+from convodrive.backends.base import Backend, Session
+from convodrive.backends.mujoco_setup import (
+    MujocoOptions,
+    add_position_actuators,
+    one_line,
+    position_actuator,
+    resolve_model,
+)
 from convodrive.motion.targets import TargetFrame, TargetSpec
-from convodrive.plugins.options import PluginOptions, option
+from convodrive.plugins.options import PluginOptions
 from convodrive.plumbing.errors import InputFileError, UserError
 
 log = logging.getLogger(__name__)
 
 NECK_HEAD = ("neck", "head")
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {text[:300]}"
-
-
-def _resolve_model(model: str | None, spec: TargetSpec) -> Path:
-    """The MJCF to load: option ``model`` (a path, or a file name in convodrive.sims), else the
-    profile's model (``spec.model``), else the bundled model named like the target
-    (``servo_head`` -> sims/servo_head.xml). A backend never reads profiles itself."""
-    import importlib.resources
-
-    def bundled(name: str) -> Path:
-        return Path(str(importlib.resources.files("convodrive.sims").joinpath(name)))
-
-    if model:
-        path = Path(str(model)).expanduser()
-        if path.is_file():
-            return path
-        if bundled(str(model)).is_file():
-            return bundled(str(model))
-        raise UserError(f"backend mujoco: option 'model': {model!r} is neither a file nor a model in convodrive.sims")
-    if spec.model is not None:
-        return spec.model
-    if spec.name and bundled(f"{spec.name}.xml").is_file():
-        return bundled(f"{spec.name}.xml")
-    raise UserError(f"mujoco backend: no MJCF for target {spec.name!r}; give the option model: PATH")
-
-
-@dataclasses.dataclass(frozen=True)
-class MujocoOptions(RobotOptions):
-    model: str | None = option(
-        None, help="MJCF path or a file name in convodrive.sims; default: the robot profile's model"
-    )
-    video: bool = option(True, help="Film the model offscreen into mujoco.mp4 with the audio")
-    width: int = option(640, low=16, high=4096, help="Video width in pixels (even)")
-    height: int = option(480, low=16, high=4096, help="Video height in pixels (even)")
-    camera: str | None = option(
-        None, help='A camera of the model, or "free" for one framing it from the front; default "front", else the first'
-    )
-    msaa: int = option(
-        0, choices=(0, 2, 4, 8), help="Multisample anti-aliasing (4 is smoother, ~2.5x slower on CPU GL)"
-    )
-    shadows: bool = option(False, help="Render shadows and reflections (ten times slower on software GL)")
-    viewer: bool = option(False, help="Open a passive MuJoCo viewer when a display exists")
-    weld_root: bool = option(True, help="Remove free joints, welding the model where it stands")
-    gravcomp: bool = option(False, help="Compensate gravity on every body")
-    omega: float = option(
-        60.0, low=1, high=1000, help="Natural frequency (rad/s) of the position actuators the backend adds"
-    )
-    hold_unmapped: bool = option(True, help="Add actuators holding unmapped hinge joints at their rest angle")
-
-    def __post_init__(self) -> None:
-        if self.width % 2 or self.height % 2:
-            raise ValueError(f"width and height must be even (H.264), got {self.width}x{self.height}")
 
 
 class MujocoBackend(Backend):
@@ -139,14 +89,16 @@ class MujocoBackend(Backend):
         from convodrive.sims.mjcf import compile_spec, fix_root, load_spec
 
         self.gl, gl_reason = select_gl()
-        self.model_path = _resolve_model(self.options.model, spec)
+        self.model_path = resolve_model(self.options.model, spec)
         mspec = load_spec(self.model_path)
         if self.options.weld_root:
             fix_root(mspec)
         if self.options.gravcomp:
             for body in mspec.bodies:
                 body.gravcomp = 1.0
-        self._add_actuators(mspec, compile_spec(mspec, self.model_path))
+        self.added_actuators = add_position_actuators(
+            mspec, compile_spec(mspec, self.model_path), spec.names, self.options
+        )
         self.model = compile_spec(mspec, self.model_path)
         self.data = mujoco.MjData(self.model)
         m = self.model
@@ -158,7 +110,7 @@ class MujocoBackend(Backend):
             if jid < 0:
                 raise InputFileError(self.model_path, f"has no joint {name!r}, which target {spec.name!r} drives")
             self.qadr[i] = m.jnt_qposadr[jid]
-            self.act[i] = self._position_actuator(jid)
+            self.act[i] = position_actuator(m, jid, self.model_path)
         self.sq_err = np.zeros(len(spec.names))
         self.max_err = np.zeros(len(spec.names))
         self.frames = 0
@@ -178,67 +130,7 @@ class MujocoBackend(Backend):
                 self._viewer = mujoco.viewer.launch_passive(m, self.data)
             except Exception as exc:  # a viewer is a convenience, never a reason to fail the run
                 self._viewer = None
-                self.viewer_error = _one_line(exc)
-
-    def _position_actuator(self, jid: int) -> int:
-        import mujoco
-
-        m = self.model
-        for a in range(m.nu):
-            if (
-                int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT)
-                and m.actuator_trnid[a, 0] == jid
-                and int(m.actuator_biastype[a]) == int(mujoco.mjtBias.mjBIAS_AFFINE)
-                and m.actuator_biasprm[a, 1] < 0
-            ):
-                return a
-        raise InputFileError(self.model_path, f"joint {m.joint(jid).name!r} has no position actuator")
-
-    def _add_actuators(self, mspec: Any, model: Any) -> None:
-        """Give every driven (and, if asked, every other) hinge a position actuator; drop motors on them."""
-        import mujoco
-
-        def is_position(act: Any) -> bool:
-            return act.biastype == mujoco.mjtBias.mjBIAS_AFFINE and act.biasprm[1] < 0
-
-        targets = set(self.spec.names)
-        if self.options.hold_unmapped:
-            # Joints coupled by an equality constraint (a mirrored eye) follow it, not a servo.
-            coupled = {n for e in mspec.equalities if e.type == mujoco.mjtEq.mjEQ_JOINT for n in (e.name1, e.name2)}
-            targets |= {
-                model.joint(j).name
-                for j in range(model.njnt)
-                if int(model.jnt_type[j]) in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
-                and model.joint(j).name not in coupled
-            }
-        has_position = {a.target for a in mspec.actuators if a.trntype == mujoco.mjtTrn.mjTRN_JOINT and is_position(a)}
-        needed = [
-            n for n in targets if n not in has_position and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) >= 0
-        ]
-        if not needed:
-            return
-        for act in list(mspec.actuators):
-            if act.trntype == mujoco.mjtTrn.mjTRN_JOINT and act.target in needed:
-                mspec.delete(act)
-        data = mujoco.MjData(model)
-        mujoco.mj_forward(model, data)
-        full = np.zeros((model.nv, model.nv))
-        mujoco.mj_fullM(model, data, full)
-        omega = self.options.omega
-        for name in sorted(needed):
-            jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
-            inertia = full[model.jnt_dofadr[jid], model.jnt_dofadr[jid]]
-            act = mspec.add_actuator()
-            act.name = f"convodrive_{name}"
-            act.trntype = mujoco.mjtTrn.mjTRN_JOINT
-            act.target = name
-            act.set_to_position(kp=inertia * omega**2, kv=2.0 * inertia * omega)
-            if model.jnt_limited[jid]:
-                act.ctrllimited = True
-                act.ctrlrange = model.jnt_range[jid]
-            self.added_actuators.append(name)
-        # Stiff servos on light links need the velocity terms integrated implicitly.
-        mspec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+                self.viewer_error = one_line(exc)
 
     def _on_gl_thread(self, fn: Any, *args: Any) -> Any:
         """Run ``fn`` on the one thread that owns the GL context.
@@ -294,7 +186,7 @@ class MujocoBackend(Backend):
         except UserError:
             raise
         except Exception as exc:
-            self._drop_video(f"offscreen rendering unavailable ({self.gl}): {_one_line(exc)}")
+            self._drop_video(f"offscreen rendering unavailable ({self.gl}): {one_line(exc)}")
 
     def _free_camera(self) -> Any:
         """A camera looking at the model's upper half from the front (+X), for models with none."""
@@ -369,7 +261,7 @@ class MujocoBackend(Backend):
             try:
                 self._writer.append(self._on_gl_thread(self._render))
             except Exception as exc:
-                self._drop_video(f"rendering failed at frame {frame.index}: {_one_line(exc)}")
+                self._drop_video(f"rendering failed at frame {frame.index}: {one_line(exc)}")
             self.render_seconds += time.perf_counter() - t1
         if self._viewer is not None:
             try:
@@ -383,7 +275,7 @@ class MujocoBackend(Backend):
             try:
                 self._writer.close()
             except Exception as exc:
-                self._drop_video(f"video could not be finished: {_one_line(exc)}")
+                self._drop_video(f"video could not be finished: {one_line(exc)}")
             self._writer = None
         self._close_renderer()
         if self._viewer is not None:

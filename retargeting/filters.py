@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from convodrive.retargeting.profile import Smoothing
+from convodrive.retargeting.profile_schema import Smoothing
 
 
 class OneEuroFilter:

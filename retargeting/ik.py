@@ -18,7 +18,8 @@ from convodrive import FPS
 from convodrive.motion.rotations import axis_angle_to_matrix
 from convodrive.motion.skeleton import JOINT_INDEX, forward_kinematics
 from convodrive.plumbing.errors import InputFileError
-from convodrive.retargeting.profile import IKConfig, RobotProfile
+from convodrive.retargeting.profile import RobotProfile
+from convodrive.retargeting.profile_schema import IKConfig
 from convodrive.sims.mjcf import hinge_qpos_addresses, load_model
 
 

@@ -13,7 +13,7 @@ import numpy as np
 from convodrive.motion.channels import BLENDSHAPE_INDEX
 from convodrive.motion.rotations import axis_angle_to_matrix
 from convodrive.motion.skeleton import JOINT_INDEX
-from convodrive.retargeting.profile import JointMap, Term
+from convodrive.retargeting.profile_schema import JointMap, Term
 
 AXIS = {"X": 0, "Y": 1, "Z": 2}
 

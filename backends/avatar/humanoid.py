@@ -16,7 +16,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from convodrive.motion.bvh import canonical_joint_name
+from convodrive.motion.bvh_read import canonical_joint_name
 from convodrive.motion.channels import ARKIT_NAMES
 from convodrive.motion.skeleton import JOINT_INDEX
 from convodrive.plumbing.errors import InputFileError

@@ -8,8 +8,8 @@ a health record per servo. A port-level failure (adapter unplugged) raises ``Por
 The SDK trusts a status packet with a valid checksum and takes the data it asked for from it, so
 a packet shorter than the request (a late reply to an earlier, shorter read, which a loaded host
 makes likely) reads its checksum bytes as data, or raises IndexError deep inside it. Here every
-reply is measured against its request (``CheckedPacketHandler``), and a short one is a
-``ShortReply``: one bad exchange of one servo, counted and retried like a lost or corrupt one,
+reply is measured against its request (``dynamixel_sdk_io.CheckedPacketHandler``), and a short one
+is a ``ShortReply``: one bad exchange of one servo, counted and retried like a lost or corrupt one,
 never an error of the run.
 
 One bus object must be used by one thread at a time (the SDK's port has a non-reentrant busy
@@ -19,7 +19,6 @@ flag); ``lock`` serialises callers.
 from __future__ import annotations
 
 import dataclasses
-import select
 import termios
 import threading
 import time
@@ -28,8 +27,9 @@ from typing import Any
 import dynamixel_sdk as sdk
 import serial
 
+from convodrive.backends.servo.dynamixel_sdk_io import CheckedPacketHandler, LatencyPort, ShortReply
 from convodrive.backends.servo.dynamixel_table import ControlTable, Model, Register, decode, encode
-from convodrive.backends.servo.servo_base import PortLost, open_error
+from convodrive.backends.servo.serial_port import PortLost, open_error
 from convodrive.plumbing.errors import UserError
 
 PKT_ID, PKT_ERROR, PKT_PARAMETER0 = 4, 8, 9  # status packet offsets (PARAMETER0 after the error byte)
@@ -93,65 +93,6 @@ class ServoHealth:
             "temperature_c": self.temperature,
             "voltage_v": self.voltage,
         }
-
-
-class ShortReply(Exception):
-    """A status packet with a valid checksum but less data than the request asked for."""
-
-
-READ_WAIT_S = 0.001
-"""Longest a read waits for bytes before the SDK looks at its packet timeout again."""
-STATUS_OVERHEAD = 11
-"""Bytes of a status packet around its data: header 4, id, length 2, instruction, error, CRC 2."""
-PING_DATA = 3  # model number 2, firmware 1
-
-
-class CheckedPacketHandler(sdk.Protocol2PacketHandler):  # type: ignore[misc]
-    """The SDK's Protocol 2.0 handler, refusing a status packet with less data than was asked for."""
-
-    def txRxPacket(self, port, txpacket):  # type: ignore[no-untyped-def]  # noqa: N802 (SDK name)
-        rxpacket, result, error = super().txRxPacket(port, txpacket)
-        if result == sdk.COMM_SUCCESS and rxpacket is not None:
-            inst = txpacket[sdk.PKT_INSTRUCTION]
-            if inst == sdk.INST_READ:
-                wanted = sdk.DXL_MAKEWORD(txpacket[sdk.PKT_PARAMETER0 + 2], txpacket[sdk.PKT_PARAMETER0 + 3])
-            else:
-                wanted = PING_DATA if inst == sdk.INST_PING else 0
-            if len(rxpacket) < STATUS_OVERHEAD + wanted:
-                raise ShortReply(f"status packet of {len(rxpacket)} bytes, {STATUS_OVERHEAD + wanted} expected")
-        return rxpacket, result, error
-
-
-class LatencyPort(sdk.PortHandler):
-    """The SDK's port with a configurable USB latency timer in its timeouts.
-
-    The SDK assumes the FTDI default of 16 ms per direction; adapters set to 1 ms (or an emulator)
-    can use shorter timeouts, which keeps a silent servo from costing ~34 ms per attempt.
-    """
-
-    def __init__(self, port_name: str, latency_ms: float) -> None:
-        super().__init__(port_name)
-        self.latency_ms = latency_ms
-
-    def setPacketTimeout(self, packet_length: int) -> None:  # noqa: N802 (SDK name)
-        self.packet_start_time = self.getCurrentTime()
-        self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * self.latency_ms + 2.0
-
-    def readPort(self, length: int) -> bytes:  # noqa: N802 (SDK name)
-        """What has arrived, waiting up to ``READ_WAIT_S`` for it when nothing has.
-
-        The SDK calls this in a loop until its packet timeout, and the port never blocks, so the
-        loop spun a core for the whole wait (up to 2 x latency_ms for a silent servo). Waiting in
-        ``select`` returns as soon as a byte comes and leaves the CPU to others meanwhile.
-        """
-        data = self.ser.read(length)
-        if data:
-            return bytes(data)
-        try:
-            select.select([self.ser.fileno()], [], [], READ_WAIT_S)
-        except ValueError as exc:  # the port was closed under us
-            raise OSError(str(exc)) from None
-        return bytes(self.ser.read(length))
 
 
 class DynamixelBus:

@@ -1,176 +1,31 @@
 """A stateful Dynamixel Protocol 2.0 bus on a pseudo-terminal, for tests and for users without a robot.
 
-Each emulated servo holds its whole control table: a write changes later reads, EEPROM writes
-need torque off, Goal_Position outside the position limits is refused, and Present_Position slews
-toward Goal_Position at the profile velocity (or the velocity limit when the profile is 0) while
-torque is on. Replies are delayed by their time on the wire at the emulated baud rate.
+The servos on it are ``dynamixel_emulated_servo.EmulatedServo`` (each a whole control table with
+a position model). Replies are delayed by their time on the wire at the emulated baud rate.
 
-Faults are injected on demand, through the API or on the command line (``parse_fault``): dropped
-or CRC-corrupted replies, short replies (a well-formed status packet with one data byte too few,
-what a reply to an earlier, shorter request looks like when it arrives late), hardware-error bits (which switch torque off as the Shutdown register
-says, like a real servo), a servo that vanishes and comes back, a port that disappears.
+Faults are injected on demand, through the API or on the command line (``emulator_faults``):
+dropped or CRC-corrupted replies, short replies (a well-formed status packet with one data byte too
+few, what a reply to an earlier, shorter request looks like when it arrives late), hardware-error
+bits (which switch torque off as the Shutdown register says, like a real servo), a servo that
+vanishes and comes back, a port that disappears. ``emulated_head`` serves a head from a process
+of its own.
 """
 
 from __future__ import annotations
 
 import collections
-import contextlib
-import dataclasses
-import math
-import os
 import random
-import signal
-import subprocess
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator
-from multiprocessing.connection import Connection
+from collections.abc import Callable, Iterable
 
 from convodrive.backends.servo import dynamixel_packet as dp
-from convodrive.backends.servo.dynamixel_table import Model, decode, encode
+from convodrive.backends.servo.dynamixel_emulated_servo import Clock, EmulatedServo, LoggedWrite
+from convodrive.backends.servo.dynamixel_table import encode
 from convodrive.backends.servo.dynamixel_table import model as lookup_model
+from convodrive.backends.servo.emulator_faults import SERVO_FAULTS, Fault
 from convodrive.backends.servo.pty_server import PtyDevice, PtyServer
 from convodrive.plumbing.errors import UserError
-from convodrive.plumbing.text import clip_value
-
-Clock = Callable[[], float]
-
-
-class EmulatedServo:
-    """One servo: a control table in RAM plus a first-order position model."""
-
-    def __init__(self, servo_id: int, model: Model, clock: Clock) -> None:
-        self.id = servo_id
-        self.model = model
-        self.table = model.table
-        self.mem = bytearray(self.table.size)
-        self._clock = clock
-        self.alive = True
-        self._pending: tuple[int, bytes] | None = None  # REG_WRITE, applied by ACTION
-        self._present = 0.0
-        self._last = clock()
-        self.factory_reset()
-
-    def factory_reset(self) -> None:
-        self.mem[:] = bytes(len(self.mem))
-        self._set("Model_Number", self.model.number)
-        self._set("Firmware_Version", self.model.firmware)
-        self._set("ID", self.id)
-        for name, value in self.table.defaults.items():
-            self._set(name, value)
-        self._present = float(self.get("Present_Position"))
-
-    def reboot(self) -> None:
-        """RAM back to defaults, EEPROM kept, errors cleared (what REBOOT does)."""
-        self.update()
-        self._set("Torque_Enable", 0)
-        self._set("Hardware_Error_Status", 0)
-        self._set("Goal_Position", int(round(self._present)))
-
-    # ------------------------------------------------------------- registers
-    def get(self, name: str) -> int:
-        reg = self.table.reg(name)
-        return decode(self.mem[reg.address : reg.address + reg.size], reg)
-
-    def _set(self, name: str, value: int) -> None:
-        reg = self.table.reg(name)
-        self.mem[reg.address : reg.address + reg.size] = bytes(encode(value, reg))
-
-    @property
-    def torque(self) -> bool:
-        return bool(self.get("Torque_Enable"))
-
-    @property
-    def hardware_error(self) -> int:
-        return self.get("Hardware_Error_Status")
-
-    @property
-    def present(self) -> float:
-        self.update()
-        return self._present
-
-    def read(self, address: int, length: int) -> tuple[int, bytes]:
-        if address + length > len(self.mem) or length == 0:
-            return dp.ERR_DATA_RANGE, b""
-        self.update()
-        return 0, bytes(self.mem[address : address + length])
-
-    def write(self, address: int, data: bytes) -> int:
-        """Apply a write and return the status error number (0 = accepted)."""
-        if address + len(data) > len(self.mem) or not data:
-            return dp.ERR_DATA_RANGE
-        touched = [
-            (n, r)
-            for n, r in self.table.registers.items()
-            if r.address < address + len(data) and address < r.address + r.size
-        ]
-        for _name, reg in touched:
-            if not reg.writable:
-                return dp.ERR_ACCESS
-            if reg.eeprom and self.torque:
-                return dp.ERR_ACCESS
-        goal = self.table.reg("Goal_Position")
-        if goal.address >= address and goal.address + goal.size <= address + len(data):
-            value = decode(data[goal.address - address :], goal)
-            low, high = self._position_limits()
-            if not low <= value <= high:
-                return dp.ERR_DATA_LIMIT
-        self.update()
-        self.mem[address : address + len(data)] = data
-        return 0
-
-    def _position_limits(self) -> tuple[int, int]:
-        if self.table.has("Min_Position_Limit"):
-            return self.get("Min_Position_Limit"), self.get("Max_Position_Limit")
-        return self.get("CW_Angle_Limit"), self.get("CCW_Angle_Limit")
-
-    def set_error(self, fault: str) -> None:
-        """Raise a hardware-error bit; torque drops if the Shutdown register lists it."""
-        bits = {name: bit for bit, name in self.table.error_bits.items()}
-        if fault not in bits:
-            raise UserError(f"{self.model.name} has no hardware error {fault!r} (known: {', '.join(bits)})")
-        self._set("Hardware_Error_Status", self.hardware_error | (1 << bits[fault]))
-        if self.get("Shutdown") & (1 << bits[fault]):
-            self.update()
-            self._set("Torque_Enable", 0)
-
-    def move_by_hand(self, tick: int) -> None:
-        """A person turns the horn (torque off): Present_Position follows."""
-        self._present = float(tick)
-        self._set("Present_Position", tick)
-
-    def update(self) -> None:
-        now = self._clock()
-        dt, self._last = max(0.0, now - self._last), now
-        if self.torque:
-            goal = self.get("Goal_Position")
-            velocity = self.get("Profile_Velocity") if self.table.has("Profile_Velocity") else self.get("Moving_Speed")
-            if velocity == 0:
-                velocity = self.get("Velocity_Limit") if self.table.has("Velocity_Limit") else 1023
-            ticks_per_s = velocity * self.table.velocity_unit_rpm / 60.0 * self.table.resolution
-            step = ticks_per_s * dt
-            delta = goal - self._present
-            self._present = goal if abs(delta) <= step else self._present + step * (1 if delta > 0 else -1)
-            self._set("Moving", int(abs(goal - self._present) > 0.5))
-        self._set("Present_Position", int(round(self._present)))
-
-
-@dataclasses.dataclass
-class LoggedWrite:
-    """One accepted register write, as the servo saw it (emulator clock)."""
-
-    time: float
-    servo_id: int
-    value: int
-    inst: int = dp.WRITE
-    """The instruction that carried it (WRITE, SYNC_WRITE, BULK_WRITE, ACTION)."""
-    packet: int = 0
-    """The ordinal of the packet that carried it: writes of one SYNC_WRITE share it."""
-
-    @property
-    def tick(self) -> int:
-        """For goal positions: the goal in ticks."""
-        return self.value
 
 
 class DynamixelEmulator(PtyDevice):
@@ -512,79 +367,6 @@ def _u16(data: bytes, at: int) -> int:
     return data[at] | (data[at + 1] << 8)
 
 
-# ----------------------------------------------------------------- fault schedules (CLI)
-SERVO_FAULTS = ("overload", "overheating", "input_voltage", "vanish")
-RATE_FAULTS = ("drop", "corrupt", "short")
-FAULT_KINDS = (*RATE_FAULTS, *SERVO_FAULTS, "port")
-MAX_FAULT_TIME = 86_400.0
-
-
-@dataclasses.dataclass(frozen=True)
-class Fault:
-    """``KIND[:ARG][@AT][+FOR]``: e.g. ``drop:0.05`` (5 % of replies), ``short:0.1`` (10 % of
-    replies one data byte short), ``overload:3@2``
-    (servo 3 overloads 2 s in), ``vanish:4@1+2`` (servo 4 gone from 1 s to 3 s), ``port@5+1``."""
-
-    kind: str
-    arg: float | None = None
-    at: float = 0.0
-    duration: float | None = None
-
-    def __str__(self) -> str:
-        arg = "" if self.arg is None else f":{self.arg:g}"
-        duration = "" if self.duration is None else f"+{self.duration:g}"
-        return f"{self.kind}{arg}@{self.at:g}{duration}"
-
-    @property
-    def servo_id(self) -> int:
-        """The servo a servo fault hits (servo 1 when none is named)."""
-        return int(self.arg or 1)
-
-    def apply(self, emu: DynamixelEmulator) -> None:
-        if self.kind == "drop":
-            emu.drop_rate = self.arg if self.arg is not None else 0.05
-        elif self.kind == "corrupt":
-            emu.corrupt_rate = self.arg if self.arg is not None else 0.05
-        elif self.kind == "short":
-            emu.short_rate = self.arg if self.arg is not None else 0.05
-        elif self.kind == "vanish":
-            emu.vanish(self.servo_id, self.duration)
-        elif self.kind == "port":
-            emu.unplug(self.duration)
-        else:
-            emu.hardware_error(self.servo_id, self.kind)
-
-
-def split_fault(text: str) -> Fault:
-    """Parse the ``KIND[:ARG][@AT][+FOR]`` grammar without checking the kind (shared with the Maestro)."""
-    try:
-        rest, _, duration = text.partition("+")
-        rest, _, at = rest.partition("@")
-        kind, _, arg = rest.partition(":")
-        fault = Fault(kind, float(arg) if arg else None, float(at or 0), float(duration) if duration else None)
-    except ValueError:
-        raise UserError(f"--fault {clip_value(text)}: expected KIND[:ARG][@SECONDS][+SECONDS]") from None
-    times = [fault.at] + ([fault.duration] if fault.duration is not None else [])
-    if not all(0 <= t <= MAX_FAULT_TIME for t in times):  # also refuses nan
-        raise UserError(f"--fault {clip_value(text)}: times must be from 0 to {MAX_FAULT_TIME:g} seconds")
-    if fault.arg is not None and not math.isfinite(fault.arg):
-        raise UserError(f"--fault {clip_value(text)}: the argument must be a finite number")
-    return fault
-
-
-def parse_fault(text: str) -> Fault:
-    fault = split_fault(text)
-    if fault.kind not in FAULT_KINDS:
-        raise UserError(
-            f"--fault {clip_value(text)}: unknown kind {clip_value(fault.kind)} (known: {', '.join(FAULT_KINDS)})"
-        )
-    if fault.kind in RATE_FAULTS and fault.arg is not None and not 0 <= fault.arg <= 1:
-        raise UserError(f"--fault {clip_value(text)}: {fault.kind} takes a rate from 0 to 1")
-    if fault.kind in SERVO_FAULTS and not float(fault.arg or 1).is_integer():
-        raise UserError(f"--fault {clip_value(text)}: {fault.kind} takes a servo id, e.g. {fault.kind}:3")
-    return fault
-
-
 def start_emulated_head(
     ids: Iterable[int] = range(1, 8),
     model: str = "xl330",
@@ -601,53 +383,3 @@ def start_emulated_head(
     for fault in faults:
         emu.schedule(fault)
     return emu
-
-
-EMULATOR_FIFO_PRIORITY = 8
-"""Below the driver's clock (10) and its helpers (9): the emulated head never delays the clock."""
-
-
-@contextlib.contextmanager
-def emulated_head_process(faults: Iterable[str] = (), ids: Iterable[int] = range(1, 8)) -> Iterator[str]:
-    """An emulated head served by a process of its own, as real servos sit outside the driver's
-    process (so it takes no GIL time from the driver's clock); yields its port path.
-
-    It ignores SIGINT and SIGTERM, so that a driver stopped by Ctrl-C can still ease the head to
-    neutral and switch its torque off; it stops when the context ends or the driver's process dies.
-    ``faults`` use the ``--fault`` grammar (``parse_fault``).
-    """
-    from convodrive.plumbing.child import start_child
-
-    process, conn = start_child(_serve_head, list(ids), [parse_fault(text) for text in faults])
-    try:
-        if not conn.poll(60.0):
-            raise RuntimeError("the emulated servo head did not start within 60 s")
-        yield str(conn.recv())
-    finally:
-        conn.close()  # the emulator's end sees EOF and stops
-        try:
-            process.wait(timeout=5.0)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
-
-
-def _serve_head(conn: Connection, ids: list[int], faults: list[Fault]) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    # It stands for servos, which do not share the driver's CPU: answer like them, on time. Its
-    # threads only wait for bytes and sleep out wire time, so real-time scheduling (inherited by
-    # the pty server's thread, below the driver's clock) costs the machine nothing.
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(EMULATOR_FIFO_PRIORITY))
-    except (AttributeError, OSError):
-        try:
-            os.nice(-10)
-        except OSError:
-            pass
-    with start_emulated_head(ids, faults=faults) as head:
-        conn.send(head.port)
-        try:
-            conn.recv()
-        except (EOFError, OSError):
-            pass

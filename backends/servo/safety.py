@@ -158,3 +158,19 @@ class Watchdog:
 
     def expired(self, now: float | None = None) -> bool:
         return (now if now is not None else time.monotonic()) - self.last_frame > self.timeout
+
+
+def sub_spec(spec: TargetSpec, names: list[str]) -> TargetSpec:
+    """The spec restricted to the joints a backend drives."""
+    idx = [spec.index[n] for n in names]
+    return TargetSpec(
+        spec.name,
+        tuple(names),
+        spec.lower[idx],
+        spec.upper[idx],
+        spec.neutral[idx],
+        spec.max_velocity[idx],
+        spec.max_acceleration[idx],
+        tuple(spec.units[i] for i in idx),
+        spec.model,
+    )

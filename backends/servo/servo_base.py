@@ -10,16 +10,14 @@ than ``MAX_EASE_S``), reads the servos back to check they reached neutral, and s
 never raise out of ``send`` or ``close``: they are events, named in ``health()`` and ``report()``,
 and mark the backend degraded.
 
-A subclass implements the ``_hw_*`` hooks for its bus; everything here is bus-agnostic.
+A subclass implements the ``_hw_*`` hooks of ``bus_hooks.BusHooks`` for its bus; everything here
+is bus-agnostic. Events, ``health()`` and ``report()`` are ``servo_report.ServoReporting``.
 """
 
 from __future__ import annotations
 
-import abc
 import collections
-import logging
 import math
-import re
 import threading
 import time
 from collections.abc import Mapping
@@ -28,16 +26,14 @@ from typing import Any
 import numpy as np
 
 from convodrive.backends.base import Backend, Session
-from convodrive.backends.servo.safety import Ease, RawMap, Refused, SafetyGuard, Watchdog
+from convodrive.backends.servo.safety import Ease, Refused, SafetyGuard, Watchdog, sub_spec
+from convodrive.backends.servo.serial_port import PortLost
 from convodrive.backends.servo.servo_options import ServoOptions
+from convodrive.backends.servo.servo_report import ServoReporting
 from convodrive.motion.targets import TargetFrame, TargetSpec
 from convodrive.plugins.options import PluginOptions
 from convodrive.plumbing.errors import UserError, error_line
 
-log = logging.getLogger(__name__)
-_LOG_REPEAT_S = 5.0
-
-MAX_EVENTS = 100
 TICK_HZ = 30.0
 MAX_EASE_S = 10.0
 """No ease to neutral takes longer than this, whatever ``ease_s`` says: closing must end (the option's
@@ -48,28 +44,7 @@ NEUTRAL_SETTLE_S = 0.5
 """How long the servos get to arrive at the neutral goal before their positions are checked."""
 
 
-class PortLost(Exception):
-    """The serial port failed underneath us (unplugged, closed); the backend must reconnect."""
-
-
-def open_error(port: str, exc: Exception) -> UserError:
-    """One line saying why a serial port would not open."""
-    args = exc.args
-    errno = getattr(exc, "errno", None) or (args[0] if args and isinstance(args[0], int) else None)
-    nested = re.search(r"\((\d+), '", str(exc))  # pyserial wraps termios errors in its message
-    errno = errno or (int(nested.group(1)) if nested else None)
-    reason = {
-        2: "no such port",
-        13: "permission denied (is your user in the dialout group?)",
-        16: "port is busy (another program has it open)",
-        25: "not a serial port",
-    }.get(errno or 0)
-    if reason is None:
-        reason = str(args[-1] if args and isinstance(args[-1], str) else exc).split(": ")[-1]
-    return UserError(f"{port}: cannot open serial port ({reason})")
-
-
-class ServoBackend(Backend):
+class ServoBackend(ServoReporting, Backend):
     Options = ServoOptions
     options: ServoOptions
     neutral_tolerance_raw: float = 20.0
@@ -104,49 +79,9 @@ class ServoBackend(Backend):
         self._neutral_error: dict[str, float | None] = {}
         self._hurry = threading.Event()
         self._closed = False
-
-    # ---------------------------------------------------------------- hooks
-    @abc.abstractmethod
-    def _hw_calibration(self, spec: TargetSpec) -> RawMap:
-        """Validate options, set ``self.names`` (driven joints, spec order); return the raw map."""
-
-    @abc.abstractmethod
-    def _hw_open(self) -> None:
-        """Connect and initialise the servos; UserError if nothing usable answers."""
-
-    @abc.abstractmethod
-    def _hw_present(self) -> np.ndarray:
-        """Present raw positions per driven joint (NaN where unknown)."""
-
-    @abc.abstractmethod
-    def _hw_write(self, raw: np.ndarray) -> None:
-        """Send one raw goal per driven joint; raise PortLost if the port failed."""
-
-    @abc.abstractmethod
-    def _hw_poll(self) -> None:
-        """Read health (at ``read_rate``); raise PortLost; report faults through ``_event``."""
-
-    @abc.abstractmethod
-    def _hw_reconnect(self) -> bool:
-        """Try to reopen a lost port and re-initialise; True on success."""
-
-    @abc.abstractmethod
-    def _hw_connected(self) -> bool: ...
-
-    @abc.abstractmethod
-    def _hw_off(self) -> dict[str, bool]:
-        """Torque off (stop pulses) per joint, confirmed where the bus allows."""
-
-    @abc.abstractmethod
-    def _hw_close(self) -> None: ...
-
-    def _hw_health(self) -> dict[str, dict[str, Any]]:
-        """Per-joint health for ``health()``."""
-        return {}
-
-    def _hw_bus(self) -> dict[str, Any]:
-        """Bus-wide counters for ``report()``."""
-        return {}
+        self._opened = False
+        """Set once ``_hw_open`` returned: before that no servo was switched on, so ``close``
+        has nothing to ease or switch off (a port that would not open is one error, not two)."""
 
     # ---------------------------------------------------------------- open
     def open(self, spec: TargetSpec, session: Session) -> None:
@@ -163,6 +98,7 @@ class ServoBackend(Backend):
         except ValueError as exc:
             raise UserError(f"backends.{self.name}.joints: {exc}") from None
         self._hw_open()
+        self._opened = True
         present = self._hw_present()
         neutral_raw = raw_map.to_raw(self.guard.neutral).astype(float)
         present = np.where(np.isfinite(present), present, neutral_raw)
@@ -344,7 +280,7 @@ class ServoBackend(Backend):
             self._thread.join(timeout=5.0)
         with self._lock:
             try:
-                if self.guard is not None:
+                if self._opened:
                     if not self._hw_connected():
                         self._reconnect_after = 0.0
                         self._try_reconnect(time.monotonic())
@@ -361,122 +297,3 @@ class ServoBackend(Backend):
                 self._event("close_error", None, repr(exc))
             finally:
                 self._hw_close()
-
-    # ---------------------------------------------------------------- reporting
-    def _event(self, kind: str, joint: str | None, detail: str, fault: bool = True) -> None:
-        # Logged as it happens; the same event again within a few seconds (a servo refusing every
-        # frame) only at debug level, the report counts them all.
-        now = time.monotonic()
-        repeat = now - self._last_logged.get((kind, joint), -1e9) < _LOG_REPEAT_S
-        if not repeat:
-            self._last_logged[(kind, joint)] = now
-        level = logging.DEBUG if repeat else logging.WARNING if fault else logging.INFO
-        log.log(level, "%s: %s%s: %s", self.name, kind, f" {joint}" if joint else "", detail)
-        if fault:
-            self._faults.add(f"{kind}:{joint}" if joint else kind)
-        if len(self._events) < MAX_EVENTS:
-            self._events.append({"t": round(time.monotonic(), 3), "event": kind, "joint": joint, "detail": detail})
-
-    def _add_fault(self, kind: str, joint: str | None, detail: str) -> None:
-        """A fault counted by the driver rather than seen as one event: kept for the report, and
-        logged the first time it is seen."""
-        key = f"{kind}:{joint}" if joint else kind
-        if key not in self._faults:
-            self._faults.add(key)
-            log.warning("%s: %s%s: %s", self.name, kind, f" {joint}" if joint else "", detail)
-
-    def health(self) -> dict[str, Any]:
-        """Live snapshot: ``degraded`` while anything is wrong now; ``faults`` lists all seen so far."""
-        servos = self._hw_health()
-        current = [f"{s['status']}:{n}" for n, s in servos.items() if s.get("status", "ok") != "ok"]
-        for n, s in servos.items():
-            current += [f"{f}:{n}" for f in s.get("faults", [])]
-        if self.guard is not None and not self._closed and not self._hw_connected():
-            current.append("port_lost")
-        if self._counts["frames_refused"]:
-            current.append("frames_refused")
-        current = sorted(set(current))
-        return {
-            "status": "degraded" if current else "ok",
-            **({"reason": _fault_text(current)} if current else {}),
-            "port": self.options.port,
-            "active_faults": current,
-            "faults": sorted(self._faults),
-            "frames": self._counts["frames"],
-            "frames_refused": self._counts["frames_refused"],
-            "watchdog_trips": self.watchdog.tripped,
-            "servos": servos,
-            "torque_off": (bool(self.names) and all(self._torque_off.get(n, False) for n in self.names))
-            if self._closed
-            else None,
-        }
-
-    def report(self) -> dict[str, Any]:
-        """After close: ``ok``, ``degraded`` (faults seen, head safe) or ``failed`` (torque off unconfirmed)."""
-        torque_off = bool(self.names) and all(self._torque_off.get(n, False) for n in self.names)
-        faults = sorted(self._faults)
-        status = "failed" if not torque_off else ("degraded" if faults else "ok")
-        if not torque_off:
-            unconfirmed = [n for n in self.names if not self._torque_off.get(n, False)] or ["every servo"]
-            reason: str | None = f"torque off not confirmed for {', '.join(unconfirmed)}"
-            if faults:
-                reason += f"; {_fault_text(faults)}"
-        else:
-            reason = _fault_text(faults) if faults else None
-        return {
-            "status": status,
-            **({"reason": reason} if reason else {}),
-            "faults": faults,
-            "port": self.options.port,
-            "frames": self._counts["frames"],
-            "frames_refused": self._counts["frames_refused"],
-            "frames_unsent": self._counts["frames_unsent"],
-            "goal_writes": self._counts["goal_writes"],
-            "watchdog_trips": self.watchdog.tripped,
-            "eased_to_neutral": self._eased,
-            "neutral_error_raw": dict(self._neutral_error),
-            "torque_off": torque_off,
-            "torque_off_per_joint": dict(self._torque_off),
-            "bus_ms": {"write": percentiles(self._write_ms), "health_read": percentiles(self._read_ms)},
-            "bus": self._hw_bus(),
-            "clamped_frames": self.guard.clamped if self.guard else 0,
-            "servos": self._hw_health(),
-            "events": list(self._events),
-        }
-
-
-def _fault_text(faults: list[str], limit: int = 6) -> str:
-    """``overload:jaw, servo_lost:eye_tilt`` as ``overload (jaw), servo lost (eye_tilt)``, on one line."""
-    items = []
-    for fault in faults[:limit]:
-        kind, _, where = fault.partition(":")
-        items.append(kind.replace("_", " ") + (f" ({where})" if where else ""))
-    more = len(faults) - limit
-    return ", ".join(items) + (f" and {more} more" if more > 0 else "")
-
-
-def sub_spec(spec: TargetSpec, names: list[str]) -> TargetSpec:
-    """The spec restricted to the joints a backend drives."""
-    idx = [spec.index[n] for n in names]
-    return TargetSpec(
-        spec.name,
-        tuple(names),
-        spec.lower[idx],
-        spec.upper[idx],
-        spec.neutral[idx],
-        spec.max_velocity[idx],
-        spec.max_acceleration[idx],
-        tuple(spec.units[i] for i in idx),
-        spec.model,
-    )
-
-
-def percentiles(values: collections.deque[float]) -> dict[str, float | None]:
-    if not values:
-        return {"p50": None, "p99": None, "n": 0}
-    arr = np.fromiter(values, float)
-    return {
-        "p50": round(float(np.percentile(arr, 50)), 3),
-        "p99": round(float(np.percentile(arr, 99)), 3),
-        "n": int(arr.size),
-    }

@@ -19,19 +19,11 @@ import dataclasses
 import numpy as np
 
 from convodrive.audio.bleed import bleed_frames
-from convodrive.audio.features import (
-    TRACK_LOOKAHEAD,
-    WINDOW,
-    VoiceParams,
-    VoiceTracker,
-    frame_centre,
-    frame_edge,
-    raw_frames,
-    samples_needed,
-)
+from convodrive.audio.features import TRACK_LOOKAHEAD, WINDOW, frame_centre, frame_edge, raw_frames, samples_needed
 from convodrive.audio.phones import BLOCK, PhoneTracker
 from convodrive.audio.source import ANALYSIS_RATE, DyadicAudio
 from convodrive.audio.visemes import NUM_VISEMES, spectral_visemes
+from convodrive.audio.voice_tracker import VoiceParams, VoiceTracker
 
 
 def _features_due(f: int) -> int:

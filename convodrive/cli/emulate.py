@@ -154,7 +154,8 @@ def _serve(emulator: object, describe: str, log: StateLog) -> int:
 
 
 def run_dynamixel(args: argparse.Namespace) -> int:
-    from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, parse_fault
+    from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator
+    from convodrive.backends.servo.emulator_faults import parse_fault
 
     ids = parse_ids(args.ids)
     faults = [parse_fault(f) for f in args.fault]
@@ -191,7 +192,7 @@ def run_feetech(args: argparse.Namespace) -> int:
 
 def run_maestro(args: argparse.Namespace) -> int:
     from convodrive.backends.servo import maestro_protocol as mp
-    from convodrive.backends.servo.dynamixel_emulator import split_fault
+    from convodrive.backends.servo.emulator_faults import split_fault
     from convodrive.backends.servo.maestro_emulator import MaestroEmulator
 
     log = StateLog("channel", "pulses")

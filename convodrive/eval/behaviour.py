@@ -21,6 +21,7 @@ gaze toward the partner; arm motion.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -142,6 +143,31 @@ def _pearson(a: np.ndarray, b: np.ndarray) -> float | None:
     return float(np.corrcoef(a, b)[0, 1])
 
 
+@dataclasses.dataclass(frozen=True)
+class _Turns:
+    """Who is talking, per frame, and the clip's rate: the masks every figure is taken over."""
+
+    fps: float
+    self_on: np.ndarray
+    other_on: np.ndarray
+    partner_sounding: np.ndarray
+    """The partner's voice heard in the audio (within the reference segments when there are any)."""
+    only_partner: np.ndarray
+    listening: np.ndarray
+
+    def per_minute(self, events: np.ndarray, mask: np.ndarray) -> float | None:
+        minutes = mask.sum() / self.fps / 60.0
+        return round(float(events[mask].sum() / minutes), 2) if minutes > 0 else None
+
+
+def _rnd(x: float | None, nd: int = 4) -> float | None:
+    return None if x is None else round(x, nd)
+
+
+def _share(flags: np.ndarray, mask: np.ndarray) -> float | None:
+    return _rnd(_mean(flags.astype(float), mask))
+
+
 def behaviour_figures(clip: MotionClip, audio: DyadicAudio, reference: Segments | None = None) -> dict[str, Any]:
     """The figures as a JSON-ready dict. ``reference``: who really spoke when, if known.
     Raises UserError if clip and audio lengths disagree."""
@@ -152,53 +178,94 @@ def behaviour_figures(clip: MotionClip, audio: DyadicAudio, reference: Segments 
             f"({expected} frames at {clip.fps:g} fps); they must belong together"
         )
     t = clip.num_frames
-    fps = clip.fps
-    rms_self, rms_other = frame_rms(audio.self_voice, t, fps), frame_rms(audio.other_voice, t, fps)
+    rms_self = frame_rms(audio.self_voice, t, clip.fps)
+    turns = _turns(clip, rms_self, frame_rms(audio.other_voice, t, clip.fps), reference)
+    self_on, other_on, only_partner = turns.self_on, turns.other_on, turns.only_partner
+    vad_self, vad_other = clip.vad[:, 0] > VAD_ON, clip.vad[:, 1] > VAD_ON
+    return {
+        "frames": t,
+        "fps": clip.fps,
+        "duration_s": round(clip.duration, 3),
+        "activity": {
+            "source": f"reference segments {reference.source}" if reference is not None else "audio levels",
+            "self_speaking_frames": int(self_on.sum()),
+            "only_partner_frames": int(only_partner.sum()),
+            "listening_frames": int(turns.listening.sum()),
+            "overlap_frames": int((self_on & other_on).sum()),
+            "both_silent_frames": int((~self_on & ~other_on).sum()),
+        },
+        "voice_activity": {
+            "self_on_when_only_partner_speaks": _share(vad_self, only_partner),
+            "self_on_when_self_speaks": _share(vad_self, self_on),
+            "partner_on_when_only_self_speaks": _share(vad_other, self_on & ~other_on),
+        },
+        "lip_sync": _lip_sync(clip, envelope(rms_self), turns),
+        "head": _head(clip, turns),
+        "blinks_per_minute": _blinks(clip, turns),
+        "nods": _nods(clip, turns),
+        "smiles": _smiles(clip, turns),
+        "posture": _posture(clip, turns),
+        "gaze": _gaze(clip, turns),
+        "arms": _arms(clip, turns),
+    }
+
+
+def _turns(clip: MotionClip, rms_self: np.ndarray, rms_other: np.ndarray, reference: Segments | None) -> _Turns:
     heard_self, heard_other = voice_activity(rms_self), voice_activity(rms_other)
     if reference is not None:
-        self_on, other_on = reference.masks(t, fps)
+        self_on, other_on = reference.masks(clip.num_frames, clip.fps)
         partner_sounding = other_on & heard_other
     else:
         self_on, other_on = heard_self, heard_other
         partner_sounding = heard_other
-    env = envelope(rms_self)
+    listening = _partner_turn(other_on, clip.fps) & ~self_on
+    return _Turns(clip.fps, self_on, other_on, partner_sounding, other_on & ~self_on, listening)
+
+
+def _lip_sync(clip: MotionClip, env: np.ndarray, turns: _Turns) -> dict[str, Any]:
     jaw = clip.face[:, B["jawOpen"]].astype(np.float64)
+    self_on = turns.self_on
     silent = ~self_on
     closed = jaw < JAW_CLOSED
+    return {
+        "pearson_jaw_vs_self_envelope": _rnd(_pearson(jaw, env)),
+        "pearson_while_self_speaks": _rnd(_pearson(jaw[self_on], env[self_on])),
+        "jaw_closed_when_self_silent": _rnd(_mean(closed.astype(float), silent)),
+        "jaw_closed_when_only_partner_speaks": _rnd(_mean(closed.astype(float), turns.only_partner)),
+        "jaw_closed_when_both_silent": _rnd(_mean(closed.astype(float), silent & ~turns.other_on)),
+        "mean_jaw_open_self_speaking": _rnd(_mean(jaw, self_on)),
+    }
+
+
+def _head(clip: MotionClip, turns: _Turns) -> dict[str, Any]:
     speed = head_angular_speed(clip)
-    only_partner = other_on & ~self_on
-    listening = _partner_turn(other_on, fps) & ~self_on
-    speaking_speed = _mean(speed, self_on)
-    listening_speed = _mean(speed, listening)
-    minutes = lambda m: m.sum() / fps / 60.0  # noqa: E731
+    speaking_speed = _mean(speed, turns.self_on)
+    listening_speed = _mean(speed, turns.listening)
+    ratio = speaking_speed / listening_speed if speaking_speed is not None and listening_speed else None
+    return {
+        "mean_angular_speed_self_speaking_deg_s": _rnd(speaking_speed, 3),
+        "mean_angular_speed_listening_deg_s": _rnd(listening_speed, 3),
+        "mean_angular_speed_only_partner_deg_s": _rnd(_mean(speed, turns.only_partner), 3),
+        "speaking_to_listening_ratio": _rnd(ratio, 3),
+    }
+
+
+def _blinks(clip: MotionClip, turns: _Turns) -> dict[str, Any]:
     blink = clip.face[:, B["eyeBlinkLeft"]]
-    blink_onsets = (blink[1:] >= 0.5) & (blink[:-1] < 0.5)
-    blink_onsets = np.concatenate([[False], blink_onsets])
-    gaze = np.degrees(np.linalg.norm(clip.pose[:, J["left_eye_smplhf"]], axis=1))
-    arm_joints = [
-        J[n] for n in ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist")
-    ]
-    arm_speed = np.concatenate(
-        [[0.0], np.degrees(np.linalg.norm(np.diff(clip.pose[:, arm_joints], axis=0), axis=2).mean(axis=1)) * fps]
-    )
-    smiling = clip.face[:, [B["mouthSmileLeft"], B["mouthSmileRight"]]].mean(axis=1) >= SMILE
-    vad_self, vad_other = clip.vad[:, 0] > VAD_ON, clip.vad[:, 1] > VAD_ON
+    onsets = np.concatenate([[False], (blink[1:] >= 0.5) & (blink[:-1] < 0.5)])
+    return {
+        "self_speaking": turns.per_minute(onsets, turns.self_on),
+        "listening": turns.per_minute(onsets, turns.listening),
+        "only_partner": turns.per_minute(onsets, turns.only_partner),
+        "both_silent": turns.per_minute(onsets, ~turns.self_on & ~turns.other_on),
+    }
 
-    def per_minute(events: np.ndarray, mask: np.ndarray) -> float | None:
-        return round(float(events[mask].sum() / minutes(mask)), 2) if minutes(mask) > 0 else None
 
-    def rate(mask: np.ndarray) -> float | None:
-        return per_minute(blink_onsets, mask)
-
-    def rnd(x: float | None, nd: int = 4) -> float | None:
-        return None if x is None else round(x, nd)
-
-    def share(flags: np.ndarray, mask: np.ndarray) -> float | None:
-        return rnd(_mean(flags.astype(float), mask))
-
-    nods = np.zeros(t, bool)
+def _nods(clip: MotionClip, turns: _Turns) -> dict[str, Any]:
+    fps, listening = turns.fps, turns.listening
+    nods = np.zeros(clip.num_frames, bool)
     nods[nod_frames(clip)] = True
-    pauses = pause_starts(partner_sounding)
+    pauses = pause_starts(turns.partner_sounding)
     listening_pauses = pauses[listening[pauses]]
     listening_nods = np.flatnonzero(nods & listening)
     delays = [_delay_after(k, pauses) for k in listening_nods]
@@ -207,79 +274,55 @@ def behaviour_figures(clip: MotionClip, audio: DyadicAudio, reference: Segments 
     answered = [
         p for p in listening_pauses if np.any((listening_nods >= p) & (listening_nods <= p + PAUSE_NOD_S * fps))
     ]
-    shifts = np.zeros(t, bool)
-    shifts[posture_shifts(clip)] = True
-    everything = np.ones(t, bool)
-
-    ratio = speaking_speed / listening_speed if speaking_speed is not None and listening_speed else None
     return {
-        "frames": t,
-        "fps": fps,
-        "duration_s": round(clip.duration, 3),
-        "activity": {
-            "source": f"reference segments {reference.source}" if reference is not None else "audio levels",
-            "self_speaking_frames": int(self_on.sum()),
-            "only_partner_frames": int(only_partner.sum()),
-            "listening_frames": int(listening.sum()),
-            "overlap_frames": int((self_on & other_on).sum()),
-            "both_silent_frames": int((~self_on & ~other_on).sum()),
-        },
-        "voice_activity": {
-            "self_on_when_only_partner_speaks": share(vad_self, only_partner),
-            "self_on_when_self_speaks": share(vad_self, self_on),
-            "partner_on_when_only_self_speaks": share(vad_other, self_on & ~other_on),
-        },
-        "lip_sync": {
-            "pearson_jaw_vs_self_envelope": rnd(_pearson(jaw, env)),
-            "pearson_while_self_speaks": rnd(_pearson(jaw[self_on], env[self_on])),
-            "jaw_closed_when_self_silent": rnd(_mean(closed.astype(float), silent)),
-            "jaw_closed_when_only_partner_speaks": rnd(_mean(closed.astype(float), only_partner)),
-            "jaw_closed_when_both_silent": rnd(_mean(closed.astype(float), silent & ~other_on)),
-            "mean_jaw_open_self_speaking": rnd(_mean(jaw, self_on)),
-        },
-        "head": {
-            "mean_angular_speed_self_speaking_deg_s": rnd(speaking_speed, 3),
-            "mean_angular_speed_listening_deg_s": rnd(listening_speed, 3),
-            "mean_angular_speed_only_partner_deg_s": rnd(_mean(speed, only_partner), 3),
-            "speaking_to_listening_ratio": rnd(ratio, 3),
-        },
-        "blinks_per_minute": {
-            "self_speaking": rate(self_on),
-            "listening": rate(listening),
-            "only_partner": rate(only_partner),
-            "both_silent": rate(~self_on & ~other_on),
-        },
-        "nods": {
-            "per_minute_self_speaking": per_minute(nods, self_on),
-            "per_minute_listening": per_minute(nods, listening),
-            "listening_nods": len(listening_nods),
-            "listening_share_within_600ms_after_partner_pause": rnd(len(timed) / len(delays)) if delays else None,
-            "median_delay_after_partner_pause_s": rnd(float(np.median(known)), 3) if known else None,
-            "partner_pauses_while_listening": len(listening_pauses),
-            "partner_pauses_answered_by_nod": rnd(len(answered) / len(listening_pauses))
-            if len(listening_pauses)
-            else None,
-        },
-        "smiles": {
-            "share_self_speaking": share(smiling, self_on),
-            "share_listening": share(smiling, listening),
-        },
-        "posture": {
-            "shifts_per_minute": per_minute(shifts, everything),
-            "shifts_per_minute_listening": per_minute(shifts, listening),
-        },
-        "gaze": {
-            "mean_eye_angle_self_speaking_deg": rnd(_mean(gaze, self_on), 3),
-            "mean_eye_angle_listening_deg": rnd(_mean(gaze, listening), 3),
-            "mean_eye_angle_only_partner_deg": rnd(_mean(gaze, only_partner), 3),
-            "at_partner_share_self_speaking": share(gaze < GAZE_AT_PARTNER_DEG, self_on),
-            "at_partner_share_listening": share(gaze < GAZE_AT_PARTNER_DEG, listening),
-        },
-        "arms": {
-            "mean_speed_self_speaking_deg_s": rnd(_mean(arm_speed, self_on), 3),
-            "mean_speed_listening_deg_s": rnd(_mean(arm_speed, listening), 3),
-            "mean_speed_only_partner_deg_s": rnd(_mean(arm_speed, only_partner), 3),
-        },
+        "per_minute_self_speaking": turns.per_minute(nods, turns.self_on),
+        "per_minute_listening": turns.per_minute(nods, listening),
+        "listening_nods": len(listening_nods),
+        "listening_share_within_600ms_after_partner_pause": _rnd(len(timed) / len(delays)) if delays else None,
+        "median_delay_after_partner_pause_s": _rnd(float(np.median(known)), 3) if known else None,
+        "partner_pauses_while_listening": len(listening_pauses),
+        "partner_pauses_answered_by_nod": _rnd(len(answered) / len(listening_pauses))
+        if len(listening_pauses)
+        else None,
+    }
+
+
+def _smiles(clip: MotionClip, turns: _Turns) -> dict[str, Any]:
+    smiling = clip.face[:, [B["mouthSmileLeft"], B["mouthSmileRight"]]].mean(axis=1) >= SMILE
+    return {"share_self_speaking": _share(smiling, turns.self_on), "share_listening": _share(smiling, turns.listening)}
+
+
+def _posture(clip: MotionClip, turns: _Turns) -> dict[str, Any]:
+    shifts = np.zeros(clip.num_frames, bool)
+    shifts[posture_shifts(clip)] = True
+    return {
+        "shifts_per_minute": turns.per_minute(shifts, np.ones(clip.num_frames, bool)),
+        "shifts_per_minute_listening": turns.per_minute(shifts, turns.listening),
+    }
+
+
+def _gaze(clip: MotionClip, turns: _Turns) -> dict[str, Any]:
+    gaze = np.degrees(np.linalg.norm(clip.pose[:, J["left_eye_smplhf"]], axis=1))
+    return {
+        "mean_eye_angle_self_speaking_deg": _rnd(_mean(gaze, turns.self_on), 3),
+        "mean_eye_angle_listening_deg": _rnd(_mean(gaze, turns.listening), 3),
+        "mean_eye_angle_only_partner_deg": _rnd(_mean(gaze, turns.only_partner), 3),
+        "at_partner_share_self_speaking": _share(gaze < GAZE_AT_PARTNER_DEG, turns.self_on),
+        "at_partner_share_listening": _share(gaze < GAZE_AT_PARTNER_DEG, turns.listening),
+    }
+
+
+def _arms(clip: MotionClip, turns: _Turns) -> dict[str, Any]:
+    joints = [
+        J[n] for n in ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist")
+    ]
+    speed = np.concatenate(
+        [[0.0], np.degrees(np.linalg.norm(np.diff(clip.pose[:, joints], axis=0), axis=2).mean(axis=1)) * turns.fps]
+    )
+    return {
+        "mean_speed_self_speaking_deg_s": _rnd(_mean(speed, turns.self_on), 3),
+        "mean_speed_listening_deg_s": _rnd(_mean(speed, turns.listening), 3),
+        "mean_speed_only_partner_deg_s": _rnd(_mean(speed, turns.only_partner), 3),
     }
 
 

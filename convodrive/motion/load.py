@@ -25,7 +25,7 @@ def _read_npz(path: Path) -> MotionClip:
 
 
 def _read_bvh(path: Path) -> MotionClip:
-    from convodrive.motion.bvh import read_bvh
+    from convodrive.motion.bvh_read import read_bvh
 
     return read_bvh(path)
 

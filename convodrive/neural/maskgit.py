@@ -8,7 +8,7 @@ of tokens and the last pass commits everything.
 
 Each row of the batch (one take) draws its random numbers from its own generator, in a fixed
 order (``draw_uniforms``), so a take is the same whether it runs alone or beside others, and the
-torch reference (``convodrive.models.probtalk.maskgit_sample``) reproduces it from the same draws.
+torch reference (``convodrive.models.probtalk_predictor.maskgit_sample``) reproduces it from the same draws.
 """
 
 from __future__ import annotations

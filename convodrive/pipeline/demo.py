@@ -25,7 +25,7 @@ def demo_request(out_dir: Path, backends: Sequence[str] = DEMO_BACKENDS, seed: i
     with contextlib.ExitStack() as stack:
         backend_options: dict[str, dict[str, Any]] = {"render": {"camera": "upper"}} if "render" in backends else {}
         if "dynamixel" in backends:
-            from convodrive.backends.servo.dynamixel_emulator import emulated_head_process
+            from convodrive.backends.servo.emulated_head import emulated_head_process
 
             port = stack.enter_context(emulated_head_process())
             # The emulator is a process on a busy machine (the renderer and MuJoCo film beside

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import re
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -80,7 +81,28 @@ class _GuardedLoader(yaml.SafeLoader):
                             key_node.start_mark,
                         )
                     seen[key] = key_node
+            for key_node, value_node in node.value:
+                if isinstance(key_node, ScalarNode) and isinstance(value_node, ScalarNode):
+                    _check_int(value_node, clip_value(key_node.value, 40).strip("'") + ": ")
         return super().construct_mapping(node, deep=deep)
+
+    def construct_yaml_int(self, node: ScalarNode) -> int:
+        _check_int(node, "")
+        return super().construct_yaml_int(node)
+
+
+_GuardedLoader.add_constructor("tag:yaml.org,2002:int", _GuardedLoader.construct_yaml_int)
+
+
+def _check_int(node: ScalarNode, where: str) -> None:
+    """Refuse an integer too long for Python to convert (its int-string limit): one line, not the
+    ValueError PyYAML would raise."""
+    if node.tag != "tag:yaml.org,2002:int":
+        return
+    digits = sum(c.isalnum() for c in node.value)
+    limit = sys.get_int_max_str_digits() or digits + 1
+    if digits > limit:
+        raise _Refused(None, None, f"{where}an integer of {digits} digits is too long", node.start_mark)
 
 
 def _check_expanded_size(root: Node) -> None:

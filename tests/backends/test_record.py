@@ -11,6 +11,7 @@ from convodrive.backends.base import Session
 from convodrive.backends.record import RecordBackend
 from convodrive.motion import bvh as bvh_module
 from convodrive.motion import rotations
+from convodrive.motion.bvh_read import read_bvh
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.npz import load_clip
 from convodrive.motion.targets import TargetFrame, TargetSpec
@@ -64,7 +65,7 @@ def test_writes_every_output(tmp_path: Path) -> None:
         assert list(t["names"]) == ["yaw", "pitch"]
         np.testing.assert_allclose(t["values"][:, 0], np.arange(12) / 100, atol=1e-6)
         np.testing.assert_allclose(t["time"], np.arange(12) / 30)
-    assert bvh_module.read_bvh(tmp_path / "motion.bvh").num_frames == 12
+    assert read_bvh(tmp_path / "motion.bvh").num_frames == 12
     assert len((tmp_path / "motion_livelink.csv").read_text().splitlines()) == 13
     assert backend.report()["frames_received"] == 12 and backend.report()["frames_filled"] == 0
 
@@ -143,7 +144,6 @@ def test_frames_go_to_disk_as_they_arrive(tmp_path: Path) -> None:
 
 
 def test_long_recordings_are_valid_in_every_format(tmp_path: Path) -> None:
-    from convodrive.motion.bvh import read_bvh
     from convodrive.motion.livelink import read_livelink_csv
 
     n = 3000  # several of the writers' blocks, with a gap to fill in the middle

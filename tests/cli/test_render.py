@@ -11,7 +11,8 @@ import pytest
 import soundfile as sf
 
 from convodrive.cli.main import main
-from convodrive.motion.bvh import read_bvh, write_bvh
+from convodrive.motion.bvh import write_bvh
+from convodrive.motion.bvh_read import read_bvh
 from convodrive.motion.clip import MotionClip
 from convodrive.motion.npz import load_clip
 from convodrive.motion.resample import resample

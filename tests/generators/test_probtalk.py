@@ -88,7 +88,7 @@ def test_later_stages_need_the_earlier_one(stages: dict[str, Path], tiny_corpus:
 
 
 def test_runtime_maskgit_samples_the_codes_torch_samples(stages: dict[str, Path], tiny_corpus: Path) -> None:
-    from convodrive.models.probtalk import maskgit_sample
+    from convodrive.models.probtalk_predictor import maskgit_sample
     from convodrive.training.export import restore
 
     _, _, config, _, net = restore(stages["refiner"])

@@ -11,15 +11,9 @@ import dataclasses
 import pytest
 import torch
 
-from convodrive.models.a2p import (
-    A2P,
-    BODY,
-    FACE,
-    LIP_OUTPUTS,
-    A2PConfig,
-    Codebook,
-    GuideVQ,
-)
+from convodrive.models.a2p import A2P
+from convodrive.models.a2p_config import BODY, FACE, LIP_OUTPUTS, A2PConfig
+from convodrive.models.a2p_guide import Codebook, GuideVQ
 from tests.conftest import require
 
 pytestmark = require("torch")

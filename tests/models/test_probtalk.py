@@ -12,14 +12,11 @@ import torch
 import torch.nn.functional as F
 
 from convodrive.models.common import masked_l2
-from convodrive.models.probtalk import (
-    OverlapAdd,
-    ProbTalk,
-    ProbTalkConfig,
-    ProductQuantizer,
-    maskgit_sample,
-    sinusoid,
-)
+from convodrive.models.probtalk import ProbTalk
+from convodrive.models.probtalk_blocks import sinusoid
+from convodrive.models.probtalk_config import ProbTalkConfig
+from convodrive.models.probtalk_pqvae import OverlapAdd, ProductQuantizer
+from convodrive.models.probtalk_predictor import maskgit_sample
 from convodrive.motion import representation as rep
 from convodrive.neural.maskgit import draw_uniforms, remask_count
 from convodrive.neural.maskgit import maskgit_sample as numpy_maskgit_sample

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from convodrive.motion.bvh import canonical_joint_name, read_bvh, write_bvh
+from convodrive.motion.bvh import write_bvh
+from convodrive.motion.bvh_read import canonical_joint_name, read_bvh
 from convodrive.motion.clip import MotionClip
 from convodrive.motion.skeleton import JOINT_INDEX, JOINT_NAMES, PARENTS, REST_OFFSETS, REST_POSITIONS
 from convodrive.plumbing.errors import InputFileError

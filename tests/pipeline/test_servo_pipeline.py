@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from convodrive.backends.servo import dynamixel_packet as dp
-from convodrive.backends.servo.dynamixel_emulator import parse_fault, start_emulated_head
+from convodrive.backends.servo.dynamixel_emulator import start_emulated_head
+from convodrive.backends.servo.emulator_faults import parse_fault
 from convodrive.motion.npz import load_clip
 from convodrive.pipeline import DriveRequest, drive
 from convodrive.retargeting import Retargeter, load_profile
@@ -125,9 +126,15 @@ def test_short_replies_degrade_the_head_and_the_run_goes_on(tmp_path: Path) -> N
 
 
 def test_the_summary_names_the_lost_servo(tmp_path: Path) -> None:
-    """Servo 6 is gone for the whole run: the head fails (its torque-off cannot be confirmed), and
-    the summary line says which servo and why."""
-    with start_emulated_head(faults=[parse_fault("vanish:6@0+600")]) as emu:
+    """Servo 6 goes at the run's first frame and never comes back: the head fails (its torque-off
+    cannot be confirmed), and the summary line says which servo and why. (Gone before the run, it
+    is refused at open.)"""
+    with start_emulated_head() as emu:
+
+        def vanish(done: int, _total: int) -> None:
+            if done == 1:
+                emu.vanish(6)
+
         request = DriveRequest(
             audio=bundled_dialogue(),
             backends=("dynamixel",),
@@ -135,7 +142,7 @@ def test_the_summary_names_the_lost_servo(tmp_path: Path) -> None:
             realtime=False,
             backend_options={"dynamixel": {"port": emu.port, "ease_s": 0.2}},
         )
-        result = drive(request)
+        result = drive(request, on_frame=vanish)
     line = next(line for line in result.summary_path.read_text().splitlines() if "dynamixel" in line)
     assert "FAILED" in line and "torque off not confirmed for eye_tilt" in line, line
     assert "servo lost (eye_tilt)" in line, line

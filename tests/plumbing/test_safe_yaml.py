@@ -123,3 +123,16 @@ def test_bomb_in_run_config_generator_options_is_one_short_line(capsys, tmp_path
     assert main(["drive", str(tone_dialogue), "--config", str(path), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert len(err) < 300 and err.count("\n") == 1 and "option 'expressiveness' must be a number" in err, err
+
+
+def test_a_5000_digit_integer_in_a_profile_is_one_line(capsys, tmp_path: Path, tone_dialogue: Path) -> None:  # type: ignore[no-untyped-def]
+    """Issue 31 defect 15: PyYAML's int() past Python's int-string limit was a 46-line traceback."""
+    path = tmp_path / "p.yaml"
+    head = resolve_profile_path("servo_head").read_text()
+    assert "max_velocity: 3.0" in head
+    path.write_text(head.replace("max_velocity: 3.0", "max_velocity: " + "9" * 5000, 1))
+    assert main(["drive", str(tone_dialogue), "--config", str(path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(path) in err and "max_velocity: an integer of 5000 digits is too long" in err, (
+        err
+    )

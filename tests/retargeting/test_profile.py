@@ -139,6 +139,28 @@ def test_humanoid_profile_drives_every_actuated_joint():
         ("  jaw:\n", "  pan:\n", "line 7", "duplicate key 'pan' (first at line 4)"),
         ("limits: [0, 0.4]", "limits: [0, 0.4]\n    limits: [0, 0.3]", "line 9", "duplicate key 'limits'"),
         ("limits: [0, 0.4]", "limits: [0, 0.4]\n    gian: 2", "joints.jaw.gian", "did you mean 'gain'?"),
+        # issue 31 defect 15: an integer past Python's int-string limit (4300 digits) was a
+        # ValueError traceback from the YAML reader; one below it but past a float's range was an
+        # OverflowError from the checks
+        (
+            "limits: [0, 0.4]",
+            "limits: [0, 0.4]\n    max_velocity: " + "9" * 5000,
+            "line 10: max_velocity",
+            "an integer of 5000 digits is too long",
+        ),
+        ("limits: [0, 0.4]", "limits: [0, " + "9" * 5000 + "]", "line 9", "an integer of 5000 digits is too long"),
+        (
+            "limits: [0, 0.4]",
+            "limits: [0, 0.4]\n    max_velocity: " + "9" * 400,
+            "joints.jaw.max_velocity",
+            "at most 1e+06 in size, got an integer of 400 digits",
+        ),
+        (
+            "limits: [0, 0.4]",
+            "limits: [0, 0.4]\n    gain: -" + "9" * 400,
+            "joints.jaw.gain",
+            "got an integer of 400 digits",
+        ),
     ],
 )
 def test_numbers_are_finite_and_keys_unique(tmp_path, old, new, key, problem):

@@ -17,9 +17,9 @@ from collections.abc import Iterable, Iterator, Sequence
 import numpy as np
 
 from convodrive.audio.analysis import LOOKAHEAD_FRAMES, LOOKAHEAD_SAMPLES, DyadicAnalyzer, FrameBatch
-from convodrive.audio.features import VoiceParams
 from convodrive.audio.phones import pocketsphinx_available
 from convodrive.audio.source import ANALYSIS_RATE, AudioChunk, DyadicAudio, motion_frames_for
+from convodrive.audio.voice_tracker import VoiceParams
 from convodrive.generators.base import Generator, take_seed
 from convodrive.generators.procedural.body import BodySynth, yxz_axis_angle
 from convodrive.generators.procedural.conversation import ConversationOverlay

@@ -82,17 +82,37 @@ class BodySynth:
     ) -> np.ndarray:
         """(n, 55, 3) axis-angle pose."""
         n = len(gaze)
-        e, v = self.o.expressiveness, self.o.variability
-        t = (first + np.arange(n)) / 30.0
         u = self.uniform.take(first, n)
         vad_self, vad_other = s["vad"], o["vad"]
         act = self.speaking(vad_self)
         listen = self.listening(vad_other * (1.0 - vad_self))
         loud = self.loud(s["env"] * vad_self)
+        arm_targets, flicks = self._events(first, u, s)
+        head, sway = self._head(first, u, s, o, gaze, listener, posture, act, listen, loud)
+        pose = np.broadcast_to(self.rest, (n, NUM_JOINTS, 3)).copy()
+        self._torso(pose, head, posture, listen, sway)
+        self._arms(pose, posture["arms"], arm_targets, flicks)
+        return pose
 
+    def _head(
+        self,
+        first: int,
+        u: np.ndarray,
+        s: dict[str, np.ndarray],
+        o: dict[str, np.ndarray],
+        gaze: np.ndarray,
+        listener: dict[str, np.ndarray],
+        posture: dict[str, np.ndarray],
+        act: np.ndarray,
+        listen: np.ndarray,
+        loud: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The head's (yaw, pitch, roll) in radians (n, 3), and the torso's sway (2, n)."""
+        n = len(u)
+        e, v = self.o.expressiveness, self.o.variability
+        t = (first + np.arange(n)) / 30.0
         accent = s["accent"] * (1.0 + 0.5 * v * (u[:, 0] - 0.5))
         side = np.where(u[:, 1] < 0.5, -1.0, 1.0)
-        arm_targets, flicks = self._events(first, u, s)
         # Nods: on self's accents and stresses, and the listener's backchannel nods; a listener's
         # head also dips a little in time with the speaker's syllables (interactional synchrony),
         # far below a nod.
@@ -122,8 +142,14 @@ class BodySynth:
         pitch = pitch + body[:, 5] + attitude[:, 1] - 2.0 * inhale
         roll = roll + body[:, 6] + attitude[:, 2]
         head = np.radians(np.stack([yaw, pitch, roll], axis=1))
+        return head, np.radians(e * drift_amp[:, 0] * drift[:, 3:5].T)
 
-        pose = np.broadcast_to(self.rest, (n, NUM_JOINTS, 3)).copy()
+    def _torso(
+        self, pose: np.ndarray, head: np.ndarray, posture: dict[str, np.ndarray], listen: np.ndarray, sway: np.ndarray
+    ) -> None:
+        """Neck, head, spine, pelvis and collars of ``pose``, in place."""
+        n = len(head)
+        body, inhale = posture["posture"], posture["inhale"]
         # Neck takes 40 % and head 60 % of the head's motion (intrinsic yaw, pitch, roll).
         # Posture: the weight on one hip (pelvis roll, the spine bending back over it), a lean,
         # a bend and a turn at the lower back; the in-breath before a turn leans in.
@@ -139,7 +165,6 @@ class BodySynth:
         # Breathing lifts the chest and shoulders (a deeper breath before a turn); the torso sways
         # a little while talking.
         breath = posture["breath"] + 1.6 * inhale
-        sway = rad(e * drift_amp[:, 0] * drift[:, 3:5].T)  # (2, n)
         for name, gain in (("spine2", 0.35), ("spine3", 0.5)):
             pose[:, J[name], 0] = rad(-gain * breath + 0.5 * listen)
         pose[:, J["spine2"], 1] += 0.6 * sway[0]
@@ -148,23 +173,24 @@ class BodySynth:
         pose[:, J["left_collar"], 2] = rad(0.7 * breath)
         pose[:, J["right_collar"], 2] = rad(-0.7 * breath)
 
-        # The arms rest as the posture has them; gestures leave from and return to that rest.
-        rest_offset = posture["arms"]  # (n, 2, 18, 3)
+    def _arms(self, pose: np.ndarray, rest_offset: np.ndarray, arm_targets: np.ndarray, flicks: np.ndarray) -> None:
+        """The arms of ``pose``, in place: at rest as the posture has them (``rest_offset``, (n, 2, 18, 3));
+        gestures leave from and return to that rest."""
         for a, arm in enumerate(("left", "right")):
             pose[:, ARM_JOINTS[arm]] += rest_offset[:, a]
-        if self.o.gestures:
-            w = self.arms(arm_targets)
-            amount = min(e, 1.5)
-            for a, (arm, lib) in enumerate((("left", LIBRARY), ("right", LIBRARY_RIGHT))):
-                blend = np.einsum("np,pjd->njd", w[:, a * _P : (a + 1) * _P], lib)
-                idx = ARM_JOINTS[arm]
-                rest = w[:, a * _P, None, None]  # how much of the arm is at rest
-                pose[:, idx] = lib[0] + amount * (blend - lib[0]) + rest * rest_offset[:, a]
-            # The beat itself: a quick downward flick of the forearm on the stressed syllable.
-            flick = self.flick(flicks) * np.radians(9.0) * amount
-            pose[:, J["left_elbow"], 1] += flick[:, 0]
-            pose[:, J["right_elbow"], 1] -= flick[:, 1]
-        return pose
+        if not self.o.gestures:
+            return
+        w = self.arms(arm_targets)
+        amount = min(self.o.expressiveness, 1.5)
+        for a, (arm, lib) in enumerate((("left", LIBRARY), ("right", LIBRARY_RIGHT))):
+            blend = np.einsum("np,pjd->njd", w[:, a * _P : (a + 1) * _P], lib)
+            idx = ARM_JOINTS[arm]
+            rest = w[:, a * _P, None, None]  # how much of the arm is at rest
+            pose[:, idx] = lib[0] + amount * (blend - lib[0]) + rest * rest_offset[:, a]
+        # The beat itself: a quick downward flick of the forearm on the stressed syllable.
+        flick = self.flick(flicks) * np.radians(9.0) * amount
+        pose[:, J["left_elbow"], 1] += flick[:, 0]
+        pose[:, J["right_elbow"], 1] -= flick[:, 1]
 
     def _events(self, first: int, u: np.ndarray, s: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """Arm key-pose targets (n, 2P) and beat impulses (n, 2)."""

@@ -36,19 +36,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from convodrive.models.a2p import (
-    A2P,
-    BODY,
-    FACE,
-    FPS,
-    MOUTH_COLUMNS,
-    STAGES,
-    VAD,
-    A2PConfig,
-    CausalConvs,
-    Denoiser,
-    Memory,
-)
+from convodrive.models.a2p import A2P
+from convodrive.models.a2p_config import BODY, FACE, FPS, MOUTH_COLUMNS, STAGES, VAD, A2PConfig
+from convodrive.models.a2p_denoiser import Denoiser, Memory
+from convodrive.models.a2p_guide import CausalConvs
 from convodrive.models.common import masked_l2
 from convodrive.neural.diffusion import cosine_schedule, ddim_step, noised
 from convodrive.plumbing.errors import UserError

@@ -15,7 +15,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from convodrive.models.a2p import A2P, BODY, FACE, FPS, LIP_OUTPUTS, Denoiser, Memory
+from convodrive.models.a2p import A2P
+from convodrive.models.a2p_config import BODY, FACE, FPS, LIP_OUTPUTS
+from convodrive.models.a2p_denoiser import Denoiser, Memory
 from convodrive.training.recipe import DataSpec, GraphSpec
 
 TAKES = 2

@@ -29,7 +29,8 @@ from torch import nn
 
 from convodrive.eval.distribution import fd_g
 from convodrive.models.common import masked_l1
-from convodrive.models.probtalk import STAGES, ProbTalk, ProbTalkConfig
+from convodrive.models.probtalk import STAGES, ProbTalk
+from convodrive.models.probtalk_config import ProbTalkConfig
 from convodrive.motion import representation as rep
 from convodrive.motion.channels import ARKIT_NAMES
 from convodrive.plumbing.errors import UserError

@@ -9,8 +9,9 @@ from tests.conftest import require
 pytestmark = require("hardware")
 
 from convodrive.backends.servo.dynamixel_bus import DynamixelBus, Motor  # noqa: E402
-from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, parse_fault  # noqa: E402
+from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator  # noqa: E402
 from convodrive.backends.servo.dynamixel_table import model  # noqa: E402
+from convodrive.backends.servo.emulator_faults import parse_fault  # noqa: E402
 from convodrive.plumbing.errors import UserError  # noqa: E402
 
 XL330 = model("xl330")

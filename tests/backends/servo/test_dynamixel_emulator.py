@@ -16,7 +16,8 @@ import dynamixel_sdk as sdk  # noqa: E402
 import serial  # noqa: E402
 
 from convodrive.backends.servo import dynamixel_packet as dp  # noqa: E402
-from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, parse_fault  # noqa: E402
+from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator  # noqa: E402
+from convodrive.backends.servo.emulator_faults import parse_fault  # noqa: E402
 from convodrive.plumbing.errors import UserError  # noqa: E402
 
 

@@ -1,0 +1,116 @@
+"""``ProbTalkConfig``: every size and rate of ProbTalk's three networks, checked once."""
+
+from __future__ import annotations
+
+import dataclasses
+
+
+@dataclasses.dataclass(frozen=True)
+class ProbTalkConfig:
+    """Hyper-parameters; defaults are the reference implementation's (the ``paper`` preset)."""
+
+    # PQ-VAE
+    groups: int = 4
+    """G: sub-codebooks, one per slice of the latent."""
+    codes: int = 128
+    """K: codes per sub-codebook."""
+    code_dim: int = 128
+    """Dimensions of one group's slice of the latent."""
+    vq_channels: tuple[int, ...] = (256, 256, 512, 1024)
+    """Encoder widths: after the input projection, then after each stride-2 step (3 steps: 8 frames a token)."""
+    vq_layers: int = 2
+    """Conv layers in each residual stack of the encoder and decoder."""
+    vq_skip: bool = False
+    """A linear path beside the encoder's and the decoder's conv stacks: one conv over each token's 8
+    frames and half of each neighbour's, and back by ``OverlapAdd`` (so no steps at token borders),
+    added to the stack's output (False: the stacks alone, the reference's). Without it the
+    small preset's stacks underfit: trained without quantisation for 1000 steps they reconstruct
+    the test split at FD_g body 38.8, where that linear path alone reaches 0.31."""
+    vq_sphere: bool = True
+    """Quantise each group's slice as a unit vector, by cosine distance (False: as it is, by
+    Euclidean distance). The sphere drops each slice's length, which is most of the motion's
+    amplitude for a near-linear encoder: with ``vq_skip`` and the small preset's stacks, 1000 steps
+    reconstruct the test split (quantised) at FD_g body 15.8 on the sphere and 9.8 off it."""
+    commitment: float = 0.25
+    ema_decay: float = 0.99
+    velocity_weight: float = 1.0
+    acceleration_weight: float = 0.0
+    """Weight of the PQ-VAE's error on the second difference (0: none, the paper's). The velocity
+    term alone left the small preset's reconstruction shivering (5.8 times the corpus's body
+    acceleration on the test split): the second difference weighs that frame-to-frame noise four
+    times as much as the first does."""
+    vq_loss: str = "l1"
+    """Reconstruction and velocity error of the PQ-VAE: ``l1`` (the paper's) or ``l2`` (squared)."""
+    balance_parts: bool = False
+    """Weigh every part of the feature layout alike in the PQ-VAE's and the refiner's error, however many
+    channels it has (False: every channel alike, the paper's). Channel-alike lets 180 hand channels
+    outvote 12 of the head: the codes go to the hands and the head is left at its mean."""
+    eyelid_part: bool = False
+    """With ``balance_parts``: the eyelids (eyeBlinkLeft, eyeBlinkRight) count as a part of their own,
+    not as 2 of ARKit's 52 channels. Blinks fill 1 frame in 60; weighed as 2 channels of 52 the
+    PQ-VAE left them out (its reconstruction's lids never passed a third of the real blink's
+    height), and so the sampled codes never blinked. FD_g face of the real validation motion with
+    its blinks taken out: 6.7."""
+    spine_part: bool = False
+    """With ``balance_parts``: spine1..3 (the first 18 channels of the upper body) count as a part of
+    their own. Their motion is slow posture drift and breathing, a few hundredths of a radian; as 18
+    of the upper body's 66 channels the PQ-VAE left them at their mean, which alone cost 13 of its
+    reconstruction's 22.6 FD_g body on the validation split (9.5 without them). Weighed as a part
+    (small preset, seed 0) it helped little: validation recon FD_g body 28.7 against 32.0 at step
+    3000 of 8000, face 9.7 against 9.2, the spine still about 11 of the body's FD at step 2300; off
+    in the presets."""
+    # conditions
+    dyadic: bool = True
+    """Hear the partner's audio as a second stream (False: self only, to measure what it adds)."""
+    audio_channels: int = 256
+    context_channels: tuple[int, ...] = (128, 128, 256, 512)
+    """Motion-context encoder widths: first layer, then after each stride-2 step."""
+    # predictor
+    width: int = 512
+    heads: int = 8
+    layers: int = 6
+    feedforward: int = 2048
+    position: str = "2d"
+    """``2d``: time encoding + group encoding of each code (the paper's); ``1d``: one encoding of the flat index."""
+    # refiner
+    refiner_width: int = 512
+    refiner_heads: int = 8
+    refiner_layers: int = 6
+    refiner_feedforward: int = 2048
+    refiner_noise: float = 0.05
+    """Noise added to the VQ reconstructions the refiner learns to refine (the reference's 0.05)."""
+    speaker_dim: int = 512
+    """Size of the speaker embedding that modulates every sub-layer."""
+    dropout: float = 0.1
+    # training windows
+    window: int = 184
+    """Frames per training window (a multiple of 8: 23 tokens, the paper's 180 frames rounded up)."""
+    min_window: int = 48
+    """Shortest random crop, so the short windows of ``live`` mode are seen in training."""
+    context_frames: int = 30
+    """Known frames of the reference's context masks (and of the ``file`` mode's windows)."""
+
+    @property
+    def frames_per_token(self) -> int:
+        return 2 ** (len(self.vq_channels) - 1)
+
+    @property
+    def mask_id(self) -> int:
+        """The token id of a masked code (one past the last code)."""
+        return self.codes
+
+    def check(self) -> None:
+        """ValueError naming the first inconsistent setting."""
+        if len(self.vq_channels) < 2 or len(self.context_channels) != len(self.vq_channels):
+            raise ValueError("vq_channels and context_channels need the same length, at least 2")
+        if self.width % self.heads or self.refiner_width % self.refiner_heads:
+            raise ValueError("width must be a multiple of heads (predictor and refiner)")
+        if self.vq_loss not in ("l1", "l2"):
+            raise ValueError(f"vq_loss must be 'l1' or 'l2', got {self.vq_loss!r}")
+        if self.position not in ("2d", "1d"):
+            raise ValueError(f"position must be '2d' or '1d', got {self.position!r}")
+        f = self.frames_per_token
+        if self.window % f or self.min_window % f or not f <= self.min_window <= self.window:
+            raise ValueError(f"window and min_window must be multiples of {f} with min_window <= window")
+        if not 0 <= self.context_frames < self.window:
+            raise ValueError("context_frames must be below window")
