@@ -28,7 +28,8 @@ from convodrive.backends.servo import feetech_table as ft
 from convodrive.backends.servo.feetech_bus import FeetechBus, Motor
 from convodrive.backends.servo.feetech_options import FeetechJoint, FeetechOptions
 from convodrive.backends.servo.safety import RawMap
-from convodrive.backends.servo.servo_base import PortLost, ServoBackend
+from convodrive.backends.servo.serial_port import PortLost
+from convodrive.backends.servo.servo_base import ServoBackend
 from convodrive.motion.targets import TargetSpec
 from convodrive.plugins.options import PluginOptions
 from convodrive.plumbing.errors import UserError

@@ -34,7 +34,7 @@ from convodrive.backends.reachy import pose as rp
 from convodrive.backends.reachy.expression import Expression
 from convodrive.backends.reachy.link import DaemonLink
 from convodrive.backends.reachy.tracking import follow_figures
-from convodrive.backends.servo.servo_base import percentiles
+from convodrive.backends.servo.servo_report import percentiles
 from convodrive.motion.channels import ConversationState
 from convodrive.motion.targets import TargetFrame, TargetSpec
 from convodrive.plugins.options import PluginOptions, option

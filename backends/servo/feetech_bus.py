@@ -23,9 +23,10 @@ from typing import Any
 import scservo_sdk as sdk
 import serial
 
-from convodrive.backends.servo.dynamixel_bus import LatencyPort, ServoHealth
+from convodrive.backends.servo.dynamixel_bus import ServoHealth
+from convodrive.backends.servo.dynamixel_sdk_io import LatencyPort
 from convodrive.backends.servo.feetech_table import FeetechTable, Model, identify
-from convodrive.backends.servo.servo_base import PortLost, open_error
+from convodrive.backends.servo.serial_port import PortLost, open_error
 from convodrive.plumbing.errors import UserError
 
 PKT_ID, PKT_LENGTH, PKT_ERROR, PKT_PARAMETER0 = 2, 3, 4, 5

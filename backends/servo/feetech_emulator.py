@@ -22,7 +22,7 @@ import time
 from collections.abc import Callable, Iterable
 
 from convodrive.backends.servo import feetech_packet as fp
-from convodrive.backends.servo.dynamixel_emulator import SERVO_FAULTS, Fault
+from convodrive.backends.servo.emulator_faults import SERVO_FAULTS, Fault
 from convodrive.backends.servo.feetech_servo import Clock, FeetechServo
 from convodrive.backends.servo.feetech_table import model as lookup_model
 from convodrive.backends.servo.pty_server import PtyDevice, PtyServer

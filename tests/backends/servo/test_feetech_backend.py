@@ -18,7 +18,7 @@ pytestmark = require("hardware")
 from convodrive.backends.base import Session  # noqa: E402
 from convodrive.backends.feetech import FeetechBackend  # noqa: E402
 from convodrive.backends.servo import feetech_packet as fp  # noqa: E402
-from convodrive.backends.servo.dynamixel_emulator import parse_fault  # noqa: E402
+from convodrive.backends.servo.emulator_faults import parse_fault  # noqa: E402
 from convodrive.backends.servo.feetech_emulator import start_emulated_feetech  # noqa: E402
 from convodrive.cli.drive import exit_code  # noqa: E402
 from convodrive.motion.targets import TargetFrame  # noqa: E402

@@ -158,7 +158,7 @@ def test_faults_set_their_bit_in_every_reply_and_unload_as_configured() -> None:
 
 
 def test_a_fault_the_bus_cannot_have_is_refused() -> None:
-    from convodrive.backends.servo.dynamixel_emulator import parse_fault
+    from convodrive.backends.servo.emulator_faults import parse_fault
 
     emu = FeetechEmulator(range(1, 3))
     with pytest.raises(UserError, match="no servo 5"):
