@@ -31,7 +31,7 @@ import torch
 
 from convodrive.neural.folder import MODEL_FORMAT, MODEL_FORMAT_VERSION, MODEL_JSON, sha256_file
 from convodrive.neural.session import Graph, SessionOptions
-from convodrive.plumbing.errors import UserError
+from convodrive.plumbing.errors import InputFileError, UserError
 from convodrive.training.checkpoint import Checkpoint, load_checkpoint, load_weights
 from convodrive.training.recipe import DataSpec, GraphSpec, Recipe
 from convodrive.training.registry import get_recipe
@@ -48,12 +48,27 @@ class ExportResult:
 
 
 def restore(checkpoint: str | Path) -> tuple[Checkpoint, Recipe, Any, DataSpec, torch.nn.Module]:
-    """The checkpoint's recipe, model config, data spec and network with its weights, in eval mode."""
+    """The checkpoint's recipe, model config, data spec and network with its weights, in eval mode.
+    A ``state.json`` this version cannot build a network from is one ``InputFileError`` naming it."""
     ckpt = load_checkpoint(checkpoint)
-    recipe = get_recipe(ckpt.state["recipe"])
-    config = recipe.model_config(ckpt.state["model_config"])
+    state_path = ckpt.path / "state.json"
+    try:
+        recipe = get_recipe(ckpt.state["recipe"])
+        config = recipe.model_config(ckpt.state["model_config"])
+    except UserError as exc:
+        raise InputFileError(state_path, str(exc)) from None
+    stage = ckpt.state["stage"]
+    if stage not in recipe.stages:
+        raise InputFileError(state_path, f"names stage '{stage}', which model '{recipe.name}' does not have")
     spec = ckpt.data_spec()
-    net = recipe.build_model(config, spec, ckpt.state["stage"])
+    try:
+        net = recipe.build_model(config, spec, stage)
+    except UserError as exc:
+        raise InputFileError(state_path, str(exc)) from None
+    except (KeyError, IndexError, TypeError, ValueError, RuntimeError) as exc:
+        raise InputFileError(
+            state_path, f"describes no network this version builds ({type(exc).__name__}: {exc})"
+        ) from None
     load_weights(net, ckpt)
     net.eval()
     return ckpt, recipe, config, spec, net
