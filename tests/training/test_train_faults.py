@@ -163,3 +163,28 @@ def test_a_damaged_checkpoint_is_one_line_naming_the_file(
         assert not (tmp_path / "model").exists()
     _one_line(out, f"{named}: ", message)
     assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["step-00000010"]
+
+
+def test_a_batch_larger_than_the_free_memory_is_refused_before_the_first_step() -> None:
+    import numpy as np
+    import torch
+
+    from convodrive.plumbing.errors import UserError
+    from convodrive.training.batches import available_memory, check_batch_fits
+    from convodrive.training.recipe import Batch, Examples
+
+    class Wide(Examples):
+        """Examples of 4 GB each, as a tensor that only claims the size (expanded, not allocated)."""
+
+        def __len__(self) -> int:
+            return 10
+
+        def batch(self, indices: np.ndarray) -> Batch:
+            return {"motion": torch.zeros(1, 1).expand(len(indices), 10**9)}
+
+    free = available_memory()
+    assert free is not None and free > 0
+    if free > 2 * 4 * 10**9:
+        check_batch_fits(Wide(), 1, 1)  # one example fits a machine with 8 GB free
+    with pytest.raises(UserError, match=r"--batch-size 65536: one batch holds .* GiB of examples, more than half"):
+        check_batch_fits(Wide(), 65536, 65536)
