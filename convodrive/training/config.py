@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import math
 from typing import Any, TypeVar
 
 from convodrive.plumbing.errors import UserError
@@ -29,6 +30,35 @@ class TrainConfig:
     val_every: int = 500
     checkpoint_every: int = 500
     keep_checkpoints: int = 2
+
+    def check(self) -> None:
+        """Refuse settings no run can use, before anything runs: one ``UserError`` naming the option."""
+        for name, high in (("steps", MAX_COUNT), ("batch_size", MAX_BATCH)):
+            value = getattr(self, name)
+            if not 1 <= value <= high:
+                raise UserError(f"--{name.replace('_', '-')} must be between 1 and {high}, got {value}")
+        if not (math.isfinite(self.lr) and 0 < self.lr <= MAX_LR):
+            raise UserError(f"--set lr={self.lr}: the learning rate must be a number above 0 and at most {MAX_LR:g}")
+        for name in ("weight_decay", "grad_clip"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise UserError(f"--set {name}={value}: must be a finite number, 0 or more")
+        for name, low in (("log_every", 1), ("val_every", 1), ("checkpoint_every", 1), ("warmup_steps", 0)):
+            value = getattr(self, name)
+            if not low <= value <= MAX_COUNT:
+                raise UserError(f"--set {name}={value}: must be between {low} and {MAX_COUNT}")
+        for name in ("decay_steps", "keep_checkpoints", "seed"):
+            value = getattr(self, name)
+            if not 0 <= value <= MAX_COUNT:
+                raise UserError(f"--set {name}={value}: must be between 0 and {MAX_COUNT}")
+
+
+MAX_COUNT = 10**9
+"""The largest step count, interval, batch size or seed a setting may name."""
+MAX_BATCH = 1 << 16
+"""The largest global batch: 500 times the largest preset's (the loop also checks one batch fits in memory)."""
+MAX_LR = 1.0
+"""No optimiser step of AdamW this large converges: 1e30 or infinity only diverge at the first step."""
 
 
 @dataclasses.dataclass(frozen=True)

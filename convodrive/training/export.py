@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import inspect
 import io
 import json
 import logging
@@ -31,7 +32,7 @@ import torch
 
 from convodrive.neural.folder import MODEL_FORMAT, MODEL_FORMAT_VERSION, MODEL_JSON, sha256_file
 from convodrive.neural.session import Graph, SessionOptions
-from convodrive.plumbing.errors import UserError
+from convodrive.plumbing.errors import InputFileError, UserError
 from convodrive.training.checkpoint import Checkpoint, load_checkpoint, load_weights
 from convodrive.training.recipe import DataSpec, GraphSpec, Recipe
 from convodrive.training.registry import get_recipe
@@ -48,12 +49,27 @@ class ExportResult:
 
 
 def restore(checkpoint: str | Path) -> tuple[Checkpoint, Recipe, Any, DataSpec, torch.nn.Module]:
-    """The checkpoint's recipe, model config, data spec and network with its weights, in eval mode."""
+    """The checkpoint's recipe, model config, data spec and network with its weights, in eval mode.
+    A ``state.json`` this version cannot build a network from is one ``InputFileError`` naming it."""
     ckpt = load_checkpoint(checkpoint)
-    recipe = get_recipe(ckpt.state["recipe"])
-    config = recipe.model_config(ckpt.state["model_config"])
+    state_path = ckpt.path / "state.json"
+    try:
+        recipe = get_recipe(ckpt.state["recipe"])
+        config = recipe.model_config(ckpt.state["model_config"])
+    except UserError as exc:
+        raise InputFileError(state_path, str(exc)) from None
+    stage = ckpt.state["stage"]
+    if stage not in recipe.stages:
+        raise InputFileError(state_path, f"names stage '{stage}', which model '{recipe.name}' does not have")
     spec = ckpt.data_spec()
-    net = recipe.build_model(config, spec, ckpt.state["stage"])
+    try:
+        net = recipe.build_model(config, spec, stage)
+    except UserError as exc:
+        raise InputFileError(state_path, str(exc)) from None
+    except (KeyError, IndexError, TypeError, ValueError, RuntimeError) as exc:
+        raise InputFileError(
+            state_path, f"describes no network this version builds ({type(exc).__name__}: {exc})"
+        ) from None
     load_weights(net, ckpt)
     net.eval()
     return ckpt, recipe, config, spec, net
@@ -88,10 +104,12 @@ def export_graph(spec: GraphSpec, path: Path, trace_size: int = 5) -> None:
         base = dims.setdefault(name, torch.export.Dim(name, min=1, max=1 << 20))
         return int(factor) * base if factor else base
 
-    dynamic_shapes: dict[str, dict[int, Any] | None] = {}
-    for name in spec.input_names:
-        axes = spec.dynamic.get(name)
-        dynamic_shapes[name] = {a: dim(d) for a, d in axes.items()} if axes else None
+    per_input = [
+        {a: dim(d) for a, d in axes.items()} if (axes := spec.dynamic.get(n)) else None for n in spec.input_names
+    ]
+    params = inspect.signature(spec.module.forward).parameters.values()
+    varargs = next((p.name for p in params if p.kind is p.VAR_POSITIONAL), None)  # a GraphModule's
+    dynamic_shapes = {varargs: tuple(per_input)} if varargs else dict(zip(spec.input_names, per_input))
     with _quiet(), torch.no_grad():
         torch.onnx.export(
             spec.module,
@@ -202,60 +220,13 @@ def export_model(
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
-        parity_report: dict[str, dict[str, float]] = {}
-        int8_report: dict[str, dict[str, float]] = {}
-        graph_meta: dict[str, dict[str, Any]] = {}
+        exported = _GraphsReport()
         for g in graphs:
-            float_path = tmp / f"{g.name}.onnx"
-            export_graph(g, float_path)
-            parity_report[g.name] = parity(g, float_path)
-            worst = max(parity_report[g.name].values())
-            if not worst <= tolerance:
-                raise UserError(
-                    f"export of graph '{g.name}' failed the parity check: ONNX Runtime differs from torch by {worst:.3g} (> {tolerance:g}) at {parity_report[g.name]}"
-                )
-            file = float_path.name
-            if int8 and g.name not in keep_float:
-                q_path = tmp / f"{g.name}.int8.onnx"
-                quantise_int8(float_path, q_path)
-                int8_report[g.name] = int8_cost(g, float_path, q_path)
-                float_path.unlink()
-                file = q_path.name
-            graph_meta[g.name] = {
-                "file": file,
-                "inputs": list(g.input_names),
-                "outputs": list(g.output_names),
-                "dynamic_axes": {n: {str(a): d for a, d in axes.items()} for n, axes in g.dynamic.items()},
-                "description": g.description,
-            }
+            exported.add(g, tmp, tolerance, int8 and g.name not in keep_float)
         for name, arrays in recipe.export_arrays(net, config, spec).items():
             np.savez(tmp / name, **arrays)
-        files = {p.name: sha256_file(p) for p in sorted(tmp.iterdir()) if p.is_file()}
-        meta = {
-            "format": MODEL_FORMAT,
-            "version": MODEL_FORMAT_VERSION,
-            "model": recipe.name,
-            "preset": ckpt.state["preset"],
-            "stage": stage,
-            "architecture": ckpt.state["model_config"],
-            "features": spec.info,
-            "training": {
-                "corpus": ckpt.state.get("corpus"),
-                "steps": ckpt.step,
-                "train_config": ckpt.state.get("train_config"),
-                "world_size": ckpt.state.get("world_size"),
-                "validation": ckpt.state.get("validation", {}),
-                "checkpoint": str(ckpt.path),
-                "commit": _git_commit(),
-                "torch": torch.__version__,
-            },
-            "graphs": graph_meta,
-            "parity": {"tolerance": tolerance, "max_abs_err": parity_report},
-            "int8": {"quantised": "MatMul, dynamic", "cost": int8_report, "float": sorted(keep_float)}
-            if int8
-            else None,
-            "files": files,
-        }
+        meta = _model_meta(ckpt, recipe, spec, exported, tolerance, int8, keep_float)
+        meta["files"] = {p.name: sha256_file(p) for p in sorted(tmp.iterdir()) if p.is_file()}
         (tmp / MODEL_JSON).write_text(json.dumps(meta, indent=2), encoding="utf-8")
         (tmp / "MODEL_CARD.md").write_text(model_card(recipe, config, spec, meta), encoding="utf-8")
         tmp.chmod(0o755)
@@ -265,7 +236,75 @@ def export_model(
     finally:
         if tmp.exists():
             shutil.rmtree(tmp)
-    return ExportResult(out, parity_report, int8_report or None)
+    return ExportResult(out, exported.parity, exported.int8 or None)
+
+
+@dataclasses.dataclass
+class _GraphsReport:
+    """The graphs exported so far: each one's parity, int8 cost and entry in model.json."""
+
+    parity: dict[str, dict[str, float]] = dataclasses.field(default_factory=dict)
+    int8: dict[str, dict[str, float]] = dataclasses.field(default_factory=dict)
+    meta: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+
+    def add(self, g: GraphSpec, folder: Path, tolerance: float, quantise: bool) -> None:
+        """Export ``g`` into ``folder``, check its parity, quantise it if asked."""
+        float_path = folder / f"{g.name}.onnx"
+        export_graph(g, float_path)
+        self.parity[g.name] = parity(g, float_path)
+        worst = max(self.parity[g.name].values())
+        if not worst <= tolerance:
+            raise UserError(
+                f"export of graph '{g.name}' failed the parity check: ONNX Runtime differs from torch by {worst:.3g} (> {tolerance:g}) at {self.parity[g.name]}"
+            )
+        file = float_path.name
+        if quantise:
+            q_path = folder / f"{g.name}.int8.onnx"
+            quantise_int8(float_path, q_path)
+            self.int8[g.name] = int8_cost(g, float_path, q_path)
+            float_path.unlink()
+            file = q_path.name
+        self.meta[g.name] = {
+            "file": file,
+            "inputs": list(g.input_names),
+            "outputs": list(g.output_names),
+            "dynamic_axes": {n: {str(a): d for a, d in axes.items()} for n, axes in g.dynamic.items()},
+            "description": g.description,
+        }
+
+
+def _model_meta(
+    ckpt: Checkpoint,
+    recipe: Recipe,
+    spec: DataSpec,
+    exported: _GraphsReport,
+    tolerance: float,
+    int8: bool,
+    keep_float: Collection[str],
+) -> dict[str, Any]:
+    """model.json, but for its file hashes."""
+    return {
+        "format": MODEL_FORMAT,
+        "version": MODEL_FORMAT_VERSION,
+        "model": recipe.name,
+        "preset": ckpt.state["preset"],
+        "stage": ckpt.state["stage"],
+        "architecture": ckpt.state["model_config"],
+        "features": spec.info,
+        "training": {
+            "corpus": ckpt.state.get("corpus"),
+            "steps": ckpt.step,
+            "train_config": ckpt.state.get("train_config"),
+            "world_size": ckpt.state.get("world_size"),
+            "validation": ckpt.state.get("validation", {}),
+            "checkpoint": str(ckpt.path),
+            "commit": _git_commit(),
+            "torch": torch.__version__,
+        },
+        "graphs": exported.meta,
+        "parity": {"tolerance": tolerance, "max_abs_err": exported.parity},
+        "int8": {"quantised": "MatMul, dynamic", "cost": exported.int8, "float": sorted(keep_float)} if int8 else None,
+    }
 
 
 def export_untrained(

@@ -1,10 +1,10 @@
 """The one training loop: any recipe, one process or DDP, resumable, deterministic for a seed.
 
-Determinism and resumption come from drawing everything from (seed, step): the examples of step s
-are positions ``s*B .. s*B+B-1`` of a sequence of per-epoch permutations seeded by (seed, epoch),
-and a loss's randomness comes from a generator seeded by (seed, step, rank). Nothing depends on
-how many steps ran before in this process, so a resumed run continues exactly where it stopped,
-and DDP processes each take their slice of the same global batch.
+Determinism and resumption come from drawing everything from (seed, step) (``batches.py``):
+nothing depends on how many steps ran before in this process, so a resumed run continues exactly
+where it stopped, and DDP processes each take their slice of the same global batch. Bad settings
+and a run that diverges are one ``UserError`` line; a run that fails before its first checkpoint
+leaves nothing in ``--out`` (``run_folder.py``).
 """
 
 from __future__ import annotations
@@ -12,25 +12,38 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import platform
-import sys
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
 from convodrive.plumbing.errors import UserError
 from convodrive.training import distributed
-from convodrive.training.checkpoint import list_checkpoints, load_checkpoint, prune_checkpoints, save_checkpoint
+from convodrive.training.batches import check_batch_fits, default_workers, step_batches, step_seed
+from convodrive.training.checkpoint import (
+    Checkpoint,
+    list_checkpoints,
+    load_checkpoint,
+    load_optimizer,
+    load_weights,
+    prune_checkpoints,
+    save_checkpoint,
+)
 from convodrive.training.config import TrainConfig, to_dict
 from convodrive.training.heap import keep_freed_blocks
 from convodrive.training.logbook import Logbook
-from convodrive.training.recipe import Batch, Examples, Recipe, StartingPoint, StepContext, TrainingData, to_device
+from convodrive.training.progress import Progress
+from convodrive.training.recipe import Batch, Recipe, StartingPoint, StepContext, TrainingData, to_device
 from convodrive.training.registry import get_preset, get_recipe
+from convodrive.training.run_folder import check_out, cleaned_if_failed
+from convodrive.training.starting_point import init_record, starting_point
+
+
+class TrainingDiverged(UserError):
+    """The loss left the finite numbers: the settings (most often the learning rate) cannot train."""
 
 
 @dataclasses.dataclass
@@ -69,46 +82,6 @@ class TrainResult:
     steps_per_second: float
 
 
-class StepBatches(torch.utils.data.Dataset):
-    """The batch of each step, a pure function of the step (module doc), so that worker processes
-    can assemble batches ahead and the run stays the same with any number of them."""
-
-    def __init__(self, windows: Examples, config: TrainConfig, rank: int, local_batch: int) -> None:
-        self.windows, self.config, self.rank, self.local_batch = windows, config, rank, local_batch
-
-    def __len__(self) -> int:
-        return self.config.steps
-
-    def __getitem__(self, step: int) -> Batch:
-        indices = batch_indices(self.config.seed, step, len(self.windows), self.config.batch_size)
-        return self.windows.batch(indices[self.rank * self.local_batch : (self.rank + 1) * self.local_batch])
-
-
-def step_batches(
-    windows: Examples, config: TrainConfig, rank: int, local_batch: int, steps: range, workers: int
-) -> Iterable[Batch]:
-    """This process's batches of ``steps``, in order, assembled by ``workers`` processes (0: here)."""
-    dataset = StepBatches(windows, config, rank, local_batch)
-    if workers == 0:
-        return (dataset[s] for s in steps)
-    return torch.utils.data.DataLoader(
-        dataset,
-        batch_size=None,
-        sampler=steps,
-        num_workers=workers,
-        prefetch_factor=4,
-        multiprocessing_context="fork",
-        generator=torch.Generator(),  # its workers' seeds; drawn from torch's global one, they would move dropout's
-    )
-
-
-def default_workers(procs: distributed.Processes) -> int:
-    """See ``TrainRequest.workers``."""
-    if procs.device.type != "cuda":
-        return 0
-    return max(0, min(6, (os.cpu_count() or 1) // procs.world_size - 1))
-
-
 class _LossModule(torch.nn.Module):
     """The network with its recipe's loss as ``forward``, so DDP sees one forward per step."""
 
@@ -119,22 +92,6 @@ class _LossModule(torch.nn.Module):
 
     def forward(self, batch: Batch, ctx: StepContext) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:  # type: ignore[override]
         return self.recipe.loss(self.net, batch, ctx)
-
-
-def batch_indices(seed: int, step: int, count: int, batch_size: int) -> np.ndarray:
-    """The example indices of step ``step``: positions of per-epoch permutations (see module doc)."""
-    positions = step * batch_size + np.arange(batch_size, dtype=np.int64)
-    epochs, offsets = np.divmod(positions, count)
-    out = np.empty(batch_size, np.int64)
-    for epoch in np.unique(epochs):
-        perm = np.random.default_rng([seed, int(epoch)]).permutation(count)
-        sel = epochs == epoch
-        out[sel] = perm[offsets[sel]]
-    return out
-
-
-def step_seed(seed: int, step: int, rank: int) -> int:
-    return int(np.random.SeedSequence([seed, step, rank]).generate_state(1)[0])
 
 
 def learning_rate(config: TrainConfig, step: int) -> float:
@@ -168,10 +125,10 @@ def train(request: TrainRequest) -> TrainResult:
         if v is not None
     }
     train_cfg = recipe.train_config({**preset.train, **train_over, **cli_train})
-    if train_cfg.steps < 1 or train_cfg.batch_size < 1:
-        raise UserError(f"--steps and --batch-size must be at least 1 (got {train_cfg.steps}, {train_cfg.batch_size})")
+    train_cfg.check()
     corpus = Path(request.corpus)
     out = Path(request.out) if request.out else Path("runs") / f"{recipe.name}-{preset_name}-{stage}"
+    check_out(out)
 
     if request.threads < 1:
         raise UserError(f"--threads must be at least 1, got {request.threads}")
@@ -182,19 +139,11 @@ def train(request: TrainRequest) -> TrainResult:
     procs = distributed.start(request.device)
     try:
         workers = request.workers if request.workers is not None else default_workers(procs)
-        return _train(
-            recipe,
-            preset_name,
-            stage,
-            model_cfg,
-            train_cfg,
-            corpus,
-            out,
-            procs,
-            request.progress,
-            request.init,
-            workers,
-        )
+        inits = [request.init] if isinstance(request.init, (str, Path)) else list(request.init or [])
+        identity = _identity(recipe, preset_name, stage, model_cfg, train_cfg)
+        with cleaned_if_failed(out, procs.is_main):
+            session = _Session.start(recipe, identity, model_cfg, train_cfg, corpus, out, procs, inits)
+            return session.run(request.progress, workers)
     finally:
         distributed.stop(procs)
 
@@ -216,218 +165,197 @@ def _identity(recipe: Recipe, preset: str, stage: str, model_cfg: Any, train_cfg
     }
 
 
-def _train(
-    recipe: Recipe,
-    preset: str,
-    stage: str,
-    model_cfg: Any,
-    train_cfg: TrainConfig,
-    corpus: Path,
-    out: Path,
-    procs: distributed.Processes,
-    show_progress: bool,
-    init: Path | Sequence[Path] | None = None,
-    workers: int = 0,
-) -> TrainResult:
-    if train_cfg.batch_size % procs.world_size:
+def _resume_point(out: Path, identity: dict[str, Any]) -> Checkpoint | None:
+    """The run's latest checkpoint, if any; one of a run with other settings is refused."""
+    existing = list_checkpoints(out / "checkpoints")
+    if not existing:
+        return None
+    resume = load_checkpoint(existing[-1])
+    before = {k: resume.state.get(k) for k in identity}
+    before["train_config"] = {k: v for k, v in before["train_config"].items() if k not in _MAY_CHANGE_ON_RESUME}
+    if json.loads(json.dumps(before)) != json.loads(json.dumps(identity)):
         raise UserError(
-            f"the global batch size {train_cfg.batch_size} does not split over {procs.world_size} processes"
+            f"{out}: holds a run with other settings ({resume.state['recipe']}, preset {resume.state['preset']}); choose another --out"
         )
-    local_batch = train_cfg.batch_size // procs.world_size
-    identity = _identity(recipe, preset, stage, model_cfg, train_cfg)
-    ckpt_dir = out / "checkpoints"
-    existing = list_checkpoints(ckpt_dir)
-    resume = load_checkpoint(existing[-1]) if existing else None
-    if resume is not None:
-        before = {k: resume.state.get(k) for k in identity}
-        before["train_config"] = {k: v for k, v in before["train_config"].items() if k not in _MAY_CHANGE_ON_RESUME}
-        if json.loads(json.dumps(before)) != json.loads(json.dumps(identity)):
+    return resume
+
+
+def _build(recipe: Recipe, model_cfg: Any, data: TrainingData, stage: str, device: torch.device) -> torch.nn.Module:
+    """The network; one too large to allocate is a ``UserError`` naming the model, not a traceback."""
+    try:
+        return recipe.build_model(model_cfg, data.spec, stage).to(device)
+    except (RuntimeError, MemoryError) as exc:
+        if not isinstance(exc, (MemoryError, torch.OutOfMemoryError)) and "alloc" not in str(exc):
+            raise
+        raise UserError(
+            f"model '{recipe.name}': the network of these settings does not fit in memory; choose smaller sizes"
+        ) from None
+
+
+@dataclasses.dataclass
+class _Session:
+    """One run's network, optimizer and data, from its first (or resumed) step to its last."""
+
+    recipe: Recipe
+    identity: dict[str, Any]
+    model_cfg: Any
+    train_cfg: TrainConfig
+    corpus: Path
+    out: Path
+    procs: distributed.Processes
+    data: TrainingData
+    net: torch.nn.Module
+    optimizer: torch.optim.Optimizer
+    step: int
+    init: dict[str, Any] | None
+    last_checkpoint: Path | None
+    validation: dict[str, float] = dataclasses.field(default_factory=dict)
+
+    @classmethod
+    def start(
+        cls,
+        recipe: Recipe,
+        identity: dict[str, Any],
+        model_cfg: Any,
+        train_cfg: TrainConfig,
+        corpus: Path,
+        out: Path,
+        procs: distributed.Processes,
+        inits: Sequence[Path],
+    ) -> _Session:
+        """Everything a run needs before its first step, checked before anything is written."""
+        if train_cfg.batch_size % procs.world_size:
             raise UserError(
-                f"{out}: holds a run with other settings ({resume.state['recipe']}, preset {resume.state['preset']}); choose another --out"
+                f"the global batch size {train_cfg.batch_size} does not split over {procs.world_size} processes"
             )
-
-    torch.manual_seed(train_cfg.seed)
-    torch.use_deterministic_algorithms(True, warn_only=True)
-    data: TrainingData = recipe.load_data(corpus, model_cfg, stage)
-    if len(data.train) == 0:
-        raise UserError(f"{corpus}: no training examples for model '{recipe.name}'")
-    torch.manual_seed(train_cfg.seed)
-    net = recipe.build_model(model_cfg, data.spec, stage).to(procs.device)
-    optimizer = torch.optim.AdamW(net.parameters(), lr=train_cfg.lr, weight_decay=train_cfg.weight_decay)
-    step = 0
-    inits = [init] if isinstance(init, (str, Path)) else list(init or [])
-    start = _starting_point(recipe, inits) if resume is None and inits else None
-    if resume is None:
-        recipe.initialise(net, start, data.spec, stage)
-    if resume is not None:
-        from convodrive.training.checkpoint import load_weights
-
-        load_weights(net, resume)
-        optimizer.load_state_dict(resume.optimizer_state())
-        step = resume.step
-    module: torch.nn.Module = _LossModule(recipe, net)
-    if procs.distributed:
-        module = torch.nn.parallel.DistributedDataParallel(
-            module, device_ids=[procs.device.index] if procs.device.type == "cuda" else None
+        stage = identity["stage"]
+        resume = _resume_point(out, identity)
+        torch.manual_seed(train_cfg.seed)
+        torch.use_deterministic_algorithms(True, warn_only=True)
+        data = recipe.load_data(corpus, model_cfg, stage)
+        if len(data.train) == 0:
+            raise UserError(f"{corpus}: no training examples for model '{recipe.name}'")
+        check_batch_fits(data.train, train_cfg.batch_size // procs.world_size, train_cfg.batch_size)
+        torch.manual_seed(train_cfg.seed)
+        net = _build(recipe, model_cfg, data, stage, procs.device)
+        optimizer = torch.optim.AdamW(net.parameters(), lr=train_cfg.lr, weight_decay=train_cfg.weight_decay)
+        start: StartingPoint | None = None
+        if resume is None:
+            start = starting_point(recipe, inits) if inits else None
+            recipe.initialise(net, start, data.spec, stage)
+        else:
+            load_weights(net, resume)
+            load_optimizer(optimizer, resume)
+        step = resume.step if resume is not None else 0
+        return cls(
+            recipe,
+            identity,
+            model_cfg,
+            train_cfg,
+            corpus,
+            out,
+            procs,
+            data,
+            net,
+            optimizer,
+            step,
+            init_record(start, resume),
+            resume.path if resume is not None else None,
         )
 
-    if procs.is_main:
-        out.mkdir(parents=True, exist_ok=True)
-        run_info = {
-            **identity,
-            "train_config": to_dict(train_cfg),
-            "corpus": str(corpus),
-            "init": _init_record(start, resume),
-            "world_size": procs.world_size,
-            "device": str(procs.device),
+    def run(self, show_progress: bool, workers: int) -> TrainResult:
+        """Train to ``steps``, logging, validating and saving at their intervals."""
+        procs, cfg = self.procs, self.train_cfg
+        module: torch.nn.Module = _LossModule(self.recipe, self.net)
+        if procs.distributed:
+            module = torch.nn.parallel.DistributedDataParallel(
+                module, device_ids=[procs.device.index] if procs.device.type == "cuda" else None
+            )
+        if procs.is_main:
+            self.out.mkdir(parents=True, exist_ok=True)
+            (self.out / "run.json").write_text(json.dumps(self._record(), indent=2), encoding="utf-8")
+        logbook = Logbook(self.out, enabled=procs.is_main)
+        progress = Progress(f"train {self.recipe.name}", cfg.steps, self.step, show_progress and procs.is_main)
+        started, first_step = time.monotonic(), self.step
+        local_batch = cfg.batch_size // procs.world_size
+        try:
+            self.net.train()
+            for batch in step_batches(
+                self.data.train, cfg, procs.rank, local_batch, range(self.step, cfg.steps), workers
+            ):
+                loss, lr = self._step(module, batch)
+                if self.step % cfg.log_every == 0 or self.step == cfg.steps:
+                    progress.update(self.step, self._log(logbook, loss, lr))
+                if procs.is_main and (self.step % cfg.val_every == 0 or self.step == cfg.steps):
+                    self.validation = self._validate(logbook)
+                    progress.note(self.step, self.validation)
+                if procs.is_main and (self.step % cfg.checkpoint_every == 0 or self.step == cfg.steps):
+                    self.last_checkpoint = self._checkpoint()
+                distributed.barrier(procs)
+        finally:
+            progress.close()
+            logbook.close()
+        elapsed = time.monotonic() - started
+        rate = (self.step - first_step) / elapsed if elapsed > 0 and self.step > first_step else 0.0
+        return TrainResult(self.out, self.step, self.last_checkpoint, self.validation, rate)
+
+    def _step(self, module: torch.nn.Module, batch: Batch) -> tuple[dict[str, torch.Tensor], float]:
+        """One optimiser step; the loss and figures (not yet reduced over processes) and the rate."""
+        procs, cfg = self.procs, self.train_cfg
+        batch = to_device(batch, procs.device)
+        gen = torch.Generator(device="cpu").manual_seed(step_seed(cfg.seed, self.step, procs.rank))
+        ctx = StepContext(self.step, procs.rank, procs.world_size, gen)
+        lr = learning_rate(cfg, self.step)
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
+        loss, figures = module(batch, ctx)
+        if not torch.isfinite(loss):
+            raise TrainingDiverged(
+                f"training diverged at step {self.step + 1} (loss {float(loss.detach())}, learning rate {lr:.3g}): "
+                "lower the learning rate (--set lr=...) or check the settings"
+            )
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if cfg.grad_clip > 0:
+            torch.nn.utils.clip_grad_norm_(self.net.parameters(), cfg.grad_clip)
+        self.optimizer.step()
+        self.step += 1
+        return {"loss": loss.detach(), **{k: v.detach() for k, v in figures.items()}}, lr
+
+    def _log(self, logbook: Logbook, logged: dict[str, torch.Tensor], lr: float) -> float:
+        """Log the step's figures, averaged over processes; the loss."""
+        reduced = {
+            k: float(distributed.mean_over_processes(v.float().reshape(()), self.procs)) for k, v in logged.items()
+        }
+        logbook.log(self.step, "train", {**reduced, "lr": lr})
+        return reduced["loss"]
+
+    def _validate(self, logbook: Logbook) -> dict[str, float]:
+        self.net.eval()
+        with torch.no_grad():
+            figures = self.recipe.validate(self.net, self.data, self.model_cfg, self.identity["stage"])
+        self.net.train()
+        logbook.log(self.step, "val", figures)
+        return figures
+
+    def _record(self) -> dict[str, Any]:
+        """What run.json and every checkpoint's state.json say of the run."""
+        return {
+            **self.identity,
+            "train_config": to_dict(self.train_cfg),
+            "corpus": str(self.corpus),
+            "init": self.init,
+            "world_size": self.procs.world_size,
+            "device": str(self.procs.device),
             "torch": torch.__version__,
             "python": platform.python_version(),
         }
-        (out / "run.json").write_text(json.dumps(run_info, indent=2), encoding="utf-8")
-    init_record = _init_record(start, resume)
-    logbook = Logbook(out, enabled=procs.is_main)
-    progress = _Progress(f"train {recipe.name}", train_cfg.steps, step, show_progress and procs.is_main)
-    last_ckpt: Path | None = existing[-1] if existing else None
-    validation: dict[str, float] = {}
-    started, first_step = time.monotonic(), step
 
-    def checkpoint() -> Path:
-        state = {
-            **identity,
-            "train_config": to_dict(train_cfg),
-            "step": step,
-            "corpus": str(corpus),
-            "init": init_record,
-            "world_size": procs.world_size,
-            "validation": validation,
-            "torch": torch.__version__,
-        }
-        path = save_checkpoint(ckpt_dir, net, optimizer, data.spec, state)
-        prune_checkpoints(ckpt_dir, train_cfg.keep_checkpoints)
+    def _checkpoint(self) -> Path:
+        record = self._record()
+        state = {k: record[k] for k in (*self.identity, "train_config", "corpus", "init", "world_size", "torch")}
+        state.update(step=self.step, validation=self.validation)
+        ckpt_dir = self.out / "checkpoints"
+        path = save_checkpoint(ckpt_dir, self.net, self.optimizer, self.data.spec, state)
+        prune_checkpoints(ckpt_dir, self.train_cfg.keep_checkpoints)
         return path
-
-    def validate() -> dict[str, float]:
-        net.eval()
-        with torch.no_grad():
-            figures = recipe.validate(net, data, model_cfg, stage)
-        net.train()
-        logbook.log(step, "val", figures)
-        return figures
-
-    try:
-        net.train()
-        batches = step_batches(data.train, train_cfg, procs.rank, local_batch, range(step, train_cfg.steps), workers)
-        for batch in batches:
-            batch = to_device(batch, procs.device)
-            gen = torch.Generator(device="cpu").manual_seed(step_seed(train_cfg.seed, step, procs.rank))
-            ctx = StepContext(step, procs.rank, procs.world_size, gen)
-            lr = learning_rate(train_cfg, step)
-            for group in optimizer.param_groups:
-                group["lr"] = lr
-            loss, figures = module(batch, ctx)
-            if not torch.isfinite(loss):
-                raise RuntimeError(f"loss is {float(loss)} at step {step}: training diverged (lower --set lr=...)")
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            if train_cfg.grad_clip > 0:
-                torch.nn.utils.clip_grad_norm_(net.parameters(), train_cfg.grad_clip)
-            optimizer.step()
-            step += 1
-            if step % train_cfg.log_every == 0 or step == train_cfg.steps:
-                logged = {"loss": loss.detach(), **{k: v.detach() for k, v in figures.items()}}
-                reduced = {
-                    k: float(distributed.mean_over_processes(v.float().reshape(()), procs)) for k, v in logged.items()
-                }
-                logbook.log(step, "train", {**reduced, "lr": lr})
-                progress.update(step, reduced["loss"])
-            if procs.is_main and (step % train_cfg.val_every == 0 or step == train_cfg.steps):
-                validation = validate()
-                progress.note(step, validation)
-            if procs.is_main and (step % train_cfg.checkpoint_every == 0 or step == train_cfg.steps):
-                last_ckpt = checkpoint()
-            distributed.barrier(procs)
-    finally:
-        progress.close()
-        logbook.close()
-    elapsed = time.monotonic() - started
-    rate = (step - first_step) / elapsed if elapsed > 0 and step > first_step else 0.0
-    return TrainResult(out, step, last_ckpt, validation, rate)
-
-
-def _starting_point(recipe: Recipe, paths: Sequence[Path]) -> StartingPoint:
-    """The weights of one run, or of several merged (a tensor two of them hold must agree)."""
-    points = []
-    for path in paths:
-        ckpt = load_checkpoint(path)
-        if ckpt.state.get("recipe") != recipe.name:
-            raise UserError(f"--init {path}: holds a '{ckpt.state.get('recipe')}' run, not '{recipe.name}'")
-        points.append(
-            StartingPoint(ckpt.path, str(ckpt.state["stage"]), ckpt.step, ckpt.model_weights(), ckpt.data_spec())
-        )
-    first = points[0]
-    weights = dict(first.weights)
-    for other in points[1:]:
-        for key, value in other.weights.items():
-            if key in weights and (weights[key].shape != value.shape or not torch.equal(weights[key], value)):
-                raise UserError(
-                    f"--init {first.path} and {other.path}: both hold '{key}', with different values "
-                    "(runs of other data or settings?)"
-                )
-            weights[key] = value
-    if len(points) == 1:
-        return first
-    return StartingPoint(
-        Path(",".join(str(p.path) for p in points)),
-        "+".join(p.stage for p in points),
-        max(p.step for p in points),
-        weights,
-        first.spec,
-    )
-
-
-def _init_record(start: StartingPoint | None, resume: Any) -> dict[str, Any] | None:
-    """Where a run's first weights came from, kept in run.json and every checkpoint (resumed runs
-    keep their first checkpoint's record)."""
-    if start is not None:
-        return {"path": str(start.path), "stage": start.stage, "step": start.step}
-    return resume.state.get("init") if resume is not None else None
-
-
-class _Progress:
-    """A rich progress bar on a terminal; otherwise one line per validation on stderr."""
-
-    def __init__(self, label: str, total: int, done: int, enabled: bool) -> None:
-        self.enabled = enabled
-        self.bar: Any = None
-        if enabled and sys.stderr.isatty():
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-            self.bar = Progress(
-                TextColumn("[bold]{task.description}"),
-                BarColumn(),
-                MofNCompleteColumn(),
-                TextColumn("loss {task.fields[loss]}"),
-                TimeRemainingColumn(),
-                transient=True,
-            )
-            self.task = self.bar.add_task(label, total=total, completed=done, loss="-")
-            self.bar.start()
-        self.total = total
-
-    def update(self, step: int, loss: float) -> None:
-        if self.bar is not None:
-            self.bar.update(self.task, completed=step, loss=f"{loss:.4g}")
-
-    def note(self, step: int, figures: dict[str, float]) -> None:
-        if not self.enabled or not figures:
-            return
-        text = " ".join(f"{k} {v:.4g}" for k, v in figures.items())
-        line = f"step {step}/{self.total}: val {text}"
-        if self.bar is not None:
-            self.bar.console.print(line)
-        else:
-            print(line, file=sys.stderr, flush=True)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.stop()

@@ -62,6 +62,20 @@ class TrainingData:
     spec: DataSpec
 
 
+class GraphModule(torch.nn.Module):
+    """One exported graph of a network: ``forward(*inputs)`` is ``call(owner, *inputs)``. ``owner``
+    is a submodule, so the exporter sees the weights ``call`` reads; a graph of a method or of a
+    few lines around it needs no class of its own."""
+
+    def __init__(self, owner: torch.nn.Module, call: Callable[..., Any]) -> None:
+        super().__init__()
+        self.owner = owner
+        self.call = call
+
+    def forward(self, *inputs: torch.Tensor) -> Any:
+        return self.call(self.owner, *inputs)
+
+
 @dataclasses.dataclass(frozen=True)
 class GraphSpec:
     """One ONNX graph to export, and how to feed it for the parity check.

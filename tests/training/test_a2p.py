@@ -80,7 +80,7 @@ def test_stages_out_of_order_are_one_line(corpus: Path, runs: Path, tmp_path: Pa
         "train", "a2p", "--stage", "guide", "--corpus", str(corpus), *TINY, "--out", str(tmp_path / "g"),
         "--init", str(runs / "lip"),
     )  # fmt: skip
-    assert wrong.returncode == 2 and "no trained vq network" in wrong.stderr
+    assert wrong.returncode == 2 and "holds no vq network of these settings" in wrong.stderr
     assert not (tmp_path / "f" / "checkpoints").exists()
 
 
@@ -190,7 +190,7 @@ def test_body_memory_graph_reads_guide_poses_at_any_count(graphs: tuple[A2P, dic
 def test_the_velocity_loss_counts_the_step_from_the_known_frames_to_the_new_ones() -> None:
     """A prediction that is right on the new frames but starts them away from the known prefix (a
     seam) pays; one that is wrong only on the known frames, which the sampler replaces, does not."""
-    from convodrive.training.recipes.a2p import seam_velocity_error
+    from convodrive.training.recipes.a2p_losses import seam_velocity_error
 
     target = torch.linspace(0, 1, 20)[None, :, None].repeat(1, 1, 3)
     known = torch.zeros(1, 20, 1)

@@ -31,26 +31,18 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from convodrive.models.a2p import A2P
-from convodrive.models.a2p_config import BODY, FACE, FPS, MOUTH_COLUMNS, STAGES, VAD, A2PConfig
-from convodrive.models.a2p_denoiser import Denoiser, Memory
-from convodrive.models.a2p_guide import CausalConvs
-from convodrive.models.common import masked_l2
-from convodrive.neural.diffusion import cosine_schedule, ddim_step, noised
+from convodrive.models.a2p_config import FPS, STAGES, A2PConfig
 from convodrive.plumbing.errors import UserError
 from convodrive.training.config import Preset
-from convodrive.training.recipe import Batch, DataSpec, GraphSpec, Recipe, StartingPoint, StepContext, TrainingData
+from convodrive.training.recipe import Batch, DataSpec, GraphSpec, StepContext, TrainingData
+from convodrive.training.recipes.a2p_distill import distill_loss
+from convodrive.training.recipes.a2p_losses import HISTORY, body_loss, face_loss, guide_loss, lip_loss, vq_loss
+from convodrive.training.staged import StagedRecipe
 from convodrive.training.windows import window_data
-
-HISTORY = FPS * (CausalConvs.receptive_field() - 1)
-"""Frames before a body window whose 1 fps poses the VQ decoder's receptive field reaches."""
-GUIDE_REACH = 15
-"""A guide pose is known once the audio half a second past it has been heard."""
 
 _SMALL: dict[str, Any] = {
     "face_width": 128,
@@ -143,7 +135,7 @@ _TINY_TRAIN = {
 }
 
 
-class A2PRecipe(Recipe):
+class A2PRecipe(StagedRecipe):
     name = "a2p"
     description = (
         "audio2photoreal (Ng et al., CVPR 2024): a face diffusion model conditioned on both voices and a lip "
@@ -178,38 +170,18 @@ class A2PRecipe(Recipe):
         length, hop = example_length(config, stage)
         return window_data(corpus, length, hop, max(hop, length // 2), {}, stage=stage)
 
-    def build_model(self, config: A2PConfig, spec: DataSpec, stage: str) -> torch.nn.Module:
-        bands = int(spec.info["corpus"]["audio_features"]["bands"])
-        model = A2P(config, bands, len(spec.info["speakers"]), stage)
-        model.audio_norm.mean.copy_(torch.from_numpy(spec.arrays["audio_mean"]))
-        model.audio_norm.std.copy_(torch.from_numpy(spec.arrays["audio_std"]))
-        return model
+    def network(self, config: A2PConfig, bands: int, speakers: int, stage: str) -> torch.nn.Module:
+        return A2P(config, bands, speakers, stage)
 
-    def initialise(self, model: torch.nn.Module, start: StartingPoint | None, spec: DataSpec, stage: str) -> None:
-        """A stage starts from the runs of the stages it builds on (``--init``, repeatable)."""
+    def inherited(self, model: torch.nn.Module) -> tuple[str, ...]:
         assert isinstance(model, A2P)
-        needed = model.inherited_names
-        if not needed:
-            super().initialise(model, start, spec, stage)
-            return
-        if start is None:
-            raise UserError(
-                f"model 'a2p': the {stage} stage starts from trained {', '.join(needed)} networks: --init RUN "
-                f"({'--init FACE_RUN --init BODY_RUN' if stage == 'distill' else 'the previous stage'})"
-            )
-        for key in ("mean", "std", "audio_mean", "audio_std"):
-            if not np.allclose(start.spec.arrays[key], spec.arrays[key], atol=1e-5):
-                raise UserError(f"--init {start.path}: learnt from other data (its normalisation differs)")
-        own = model.state_dict()
-        for name in needed:
-            keys = [k for k in own if k.startswith(f"{name}.")]
-            bad = [k for k in keys if k not in start.weights or start.weights[k].shape != own[k].shape]
-            if bad:
-                raise UserError(
-                    f"--init {start.path}: holds no trained {name} network of these settings (mismatch at {bad[0]}): "
-                    "train that stage first, with the same preset"
-                )
-        model.load_state_dict({k: v for k, v in start.weights.items() if k in own}, strict=False)
+        return model.inherited_names
+
+    def init_hint(self, stage: str) -> str:
+        return "RUN (" + ("--init FACE_RUN --init BODY_RUN" if stage == "distill" else "the previous stage") + ")"
+
+    def after_initialise(self, model: torch.nn.Module, stage: str) -> None:
+        """Distillation's students start as copies of their teachers."""
         if stage == "distill":
             for teacher in ("face", "body"):
                 student, target = getattr(model, f"{teacher}_student"), getattr(model, f"{teacher}_target")
@@ -279,299 +251,3 @@ def copy_matching(source: nn.Module, target: nn.Module) -> None:
     target.load_state_dict(
         {k: v for k, v in source.state_dict().items() if k in own and own[k].shape == v.shape}, strict=False
     )
-
-
-# --------------------------------------------------------------------------------- batch helpers
-def _randint(low: int, high: int, generator: torch.Generator) -> int:
-    """An int in [low, high]."""
-    return int(torch.randint(low, high + 1, (), generator=generator))
-
-
-def crop(length: int, config: A2PConfig, generator: torch.Generator) -> tuple[int, int]:
-    """Offset and length of this step's window inside a ``length``-frame example (half the time
-    the whole, else a random length of at least ``min_window``)."""
-    if float(torch.rand((), generator=generator)) < 0.5 or length <= config.min_window:
-        return 0, length
-    size = _randint(config.min_window, length, generator)
-    return _randint(0, length - size, generator), size
-
-
-def known_prefix(batch: int, frames: int, config: A2PConfig, generator: torch.Generator) -> torch.Tensor:
-    """(B, frames, 1): 1 on the known prefix of each example (none a quarter of the time, else
-    1 to ``context`` frames)."""
-    mask = torch.zeros(batch, frames, 1)
-    for b in range(batch):
-        if float(torch.rand((), generator=generator)) >= 0.25:
-            mask[b, : _randint(1, min(config.context, frames - 1), generator)] = 1.0
-    return mask
-
-
-def keep_flags(batch: int, conditions: int, drop: float, generator: torch.Generator) -> torch.Tensor:
-    """(B, n) 0/1: with probability ``drop`` an example loses every condition, else each one with
-    probability ``drop / 2`` (classifier-free guidance needs the unconditional model most)."""
-    everything = torch.rand(batch, 1, generator=generator) < drop
-    each = torch.rand(batch, conditions, generator=generator) < drop / 2
-    return (~(everything | each)).float()
-
-
-def alpha_bar(config: A2PConfig) -> torch.Tensor:
-    return torch.from_numpy(cosine_schedule(config.diffusion_steps)).float()
-
-
-def noised_at(x0: torch.Tensor, steps: torch.Tensor, noise: torch.Tensor, config: A2PConfig) -> torch.Tensor:
-    return noised(x0, noise, alpha_bar(config).to(x0.device)[steps][:, None, None])
-
-
-def denoiser_loss(
-    net: Denoiser,
-    target: torch.Tensor,
-    feature_mask: torch.Tensor,
-    memory: Memory,
-    config: A2PConfig,
-    velocity_weight: float,
-    generator: torch.Generator,
-) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """x0 prediction at a uniform random diffusion step, on the frames not known, plus the
-    velocity error (over all frames, so the seam with the known prefix counts)."""
-    b, t, _ = target.shape
-    device = target.device
-    known = known_prefix(b, t, config, generator).to(device)
-    steps = torch.randint(config.diffusion_steps, (b,), generator=generator).to(device)
-    noise = torch.randn(target.shape, generator=generator).to(device)
-    x0 = net.step(noised_at(target, steps, noise, config), steps, target, known, memory)
-    rec = masked_l2(x0, target, feature_mask * (1 - known))
-    vel = seam_velocity_error(x0, target, known, feature_mask)
-    return rec + velocity_weight * vel, {"x0": rec.detach(), "velocity": vel.detach()}
-
-
-def seam_velocity_error(
-    x0: torch.Tensor, target: torch.Tensor, known: torch.Tensor, feature_mask: torch.Tensor
-) -> torch.Tensor:
-    """Velocity error of the motion as sampled, the known frames pinned (the sampler replaces
-    them): the step from the last known frame to the first new one counts, which the prediction on
-    the known frames, never used, would hide."""
-    pinned = known * target + (1 - known) * x0
-    return masked_l2(pinned.diff(dim=1), target.diff(dim=1), feature_mask)
-
-
-def _window(batch: Batch, offset: int, size: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    return batch["motion"][:, offset : offset + size], batch["audio"][:, offset : offset + size], batch["mask"]
-
-
-# ------------------------------------------------------------------------------------- the stages
-def lip_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """Mouth and self's voice activity from the audio as heard; the partner's activity from the
-    audio with the channels swapped (the partner's mouth is not in the corpus)."""
-    assert model.lip is not None
-    offset, size = crop(batch["motion"].shape[1], model.config, generator)
-    motion, audio, mask = _window(batch, offset, size)
-    heard = model.audio_norm(audio)
-    swapped = model.audio_norm(audio.flip(2))
-    out = model.lip(torch.cat([heard, swapped]))
-    own, other = out[: len(motion)], out[len(motion) :]
-    columns = list(MOUTH_COLUMNS)
-    mouth = masked_l2(own[..., :-1], motion[..., columns], mask[..., columns])
-    vad_self = F.mse_loss(own[..., -1], motion[..., VAD.start])
-    vad_other = F.mse_loss(other[..., -1], motion[..., VAD.start + 1])
-    return mouth + vad_self + vad_other, {"mouth": mouth.detach(), "vad": (vad_self + vad_other).detach() / 2}
-
-
-def face_conditions(model: A2P, audio: torch.Tensor) -> list[torch.Tensor]:
-    """Both voices (normalised log-mel) and the frozen lip regressor's answer for self."""
-    assert model.lip is not None
-    heard = model.audio_norm(audio)
-    with torch.no_grad():
-        lip = model.lip(heard)
-    return [heard, lip]
-
-
-def face_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    assert model.face is not None
-    offset, size = crop(batch["motion"].shape[1], model.config, generator)
-    motion, audio, mask = _window(batch, offset, size)
-    conditions = face_conditions(model, audio)
-    keep = keep_flags(len(motion), 2, model.config.cond_drop, generator).to(motion.device)
-    memory = model.face.memory(conditions, keep, batch["speaker"])
-    return denoiser_loss(
-        model.face,
-        motion[..., FACE],
-        mask[..., FACE],
-        memory,
-        model.config,
-        model.config.face_velocity_weight,
-        generator,
-    )
-
-
-def second_poses(motion: torch.Tensor, phase: int) -> torch.Tensor:
-    """The body poses of every 30th frame from ``phase``: (B, K, body dims)."""
-    return motion[:, phase::FPS, BODY]
-
-
-def vq_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    assert model.vq is not None
-    poses = second_poses(batch["motion"], _randint(0, FPS - 1, generator))
-    return model.vq.loss(poses, batch["mask"][..., BODY], generator)
-
-
-def guide_inputs(model: A2P, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
-    """The (B, N) code targets of a guide example and the (B, S, 30, 2*bands) audio of its
-    seconds and the span - 1 before: second k is the 30 frames centred on its pose's frame."""
-    assert model.vq is not None
-    config = model.config
-    lead = FPS * (config.guide_audio_span - 1) + GUIDE_REACH
-    motion = batch["motion"]
-    with torch.no_grad():
-        codes = model.vq.encode(second_poses(motion, lead))[:, : config.guide_seconds]
-    heard = model.audio_norm(batch["audio"])
-    seconds = config.guide_seconds + config.guide_audio_span - 1
-    chunks = heard[:, : seconds * FPS].reshape(len(motion), seconds, FPS, -1)
-    return codes.reshape(len(motion), -1), chunks
-
-
-def guide_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """Next-code cross-entropy with label smoothing 0.1 (the reference's), teacher forcing."""
-    assert model.guide is not None
-    targets, chunks = guide_inputs(model, batch)
-    keep = (torch.rand(len(targets), generator=generator) >= model.config.cond_drop).float().to(targets.device)
-    memory = model.guide.audio_memory(chunks, keep)
-    start = torch.full((len(targets), 1), model.guide.start_token, dtype=torch.long, device=targets.device)
-    inputs = torch.cat([start, targets[:, :-1]], dim=1)
-    logits = model.guide(inputs, memory, batch["speaker"])
-    loss = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), targets.reshape(-1), label_smoothing=0.1)
-    accuracy = (logits.argmax(-1) == targets).float().mean()
-    return loss, {"accuracy": accuracy.detach()}
-
-
-def body_inputs(
-    model: A2P, batch: Batch, generator: torch.Generator
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """From a body example (``HISTORY`` frames, then the window): this step's window motion and
-    audio, and its guide poses as the runtime has them: decoded from the VQ codes of the 1 fps
-    poses (the history's as the decoder's context), at their frames relative to the window, known
-    from a second before the window to ``GUIDE_REACH`` frames before its end, a tenth dropped."""
-    assert model.vq is not None
-    offset, size = crop(batch["motion"].shape[1] - HISTORY, model.config, generator)
-    begin = HISTORY + offset
-    motion, audio = batch["motion"][:, begin : begin + size], batch["audio"][:, begin : begin + size]
-    phase = _randint(0, FPS - 1, generator)
-    with torch.no_grad():
-        guides = model.vq.decode(model.vq.encode(second_poses(batch["motion"][:, : begin + size], phase)))
-    positions = torch.arange(phase, begin + size, FPS, dtype=torch.float32, device=motion.device) - begin
-    near = (positions >= -FPS) & (positions <= size - GUIDE_REACH)
-    guides, positions = guides[:, near], positions[near][None].expand(len(motion), -1)
-    valid = (torch.rand(positions.shape, generator=generator) >= 0.1).float().to(motion.device)
-    return motion, audio, batch["mask"], guides, positions, valid
-
-
-def body_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    assert model.body is not None
-    motion, audio, mask, guides, positions, valid = body_inputs(model, batch, generator)
-    keep = keep_flags(len(motion), 2, model.config.cond_drop, generator).to(motion.device)
-    memory = model.body.memory([model.audio_norm(audio)], keep, batch["speaker"], guides, positions, valid)
-    return denoiser_loss(
-        model.body,
-        motion[..., BODY],
-        mask[..., BODY],
-        memory,
-        model.config,
-        model.config.body_velocity_weight,
-        generator,
-    )
-
-
-@torch.no_grad()
-def update_target(student: nn.Module, target: nn.Module, decay: float) -> None:
-    for s, t in zip(student.parameters(), target.parameters()):
-        t.mul_(decay).add_(s.detach(), alpha=1 - decay)
-
-
-def consistency_loss(
-    teacher: Denoiser,
-    student: Denoiser,
-    target_net: Denoiser,
-    memories: tuple[Memory, Memory, Memory],
-    x0: torch.Tensor,
-    feature_mask: torch.Tensor,
-    guidance_max: float,
-    config: A2PConfig,
-    generator: torch.Generator,
-) -> torch.Tensor:
-    """One consistency-distillation term (see the module doc). ``memories``: the teacher's
-    (conditional rows, then unconditional), the target's and the student's."""
-    teacher_memory, target_memory, student_memory = memories
-    b, t, _ = x0.shape
-    device = x0.device
-    skip, points = config.distill_skip, config.diffusion_steps // config.distill_skip
-    known = known_prefix(b, t, config, generator).to(device)
-    n = torch.randint(1, points + 1, (b,), generator=generator).to(device)
-    step, previous = n * skip - 1, (n - 1) * skip - 1
-    scale = (1 + torch.rand(b, generator=generator) * (guidance_max - 1)).to(device)
-    noise = torch.randn(x0.shape, generator=generator).to(device)
-    abar = alpha_bar(config).to(device)
-    x = noised(x0, noise, abar[step][:, None, None])
-    with torch.no_grad():
-        both = teacher.step(
-            torch.cat([x, x]), torch.cat([step, step]), torch.cat([x0, x0]), torch.cat([known, known]), teacher_memory
-        )
-        cond, uncond = both[:b], both[b:]
-        guess = uncond + scale[:, None, None] * (cond - uncond)
-        guess = known * x0 + (1 - known) * guess
-        a_prev = torch.where(previous >= 0, abar[previous.clamp(min=0)], torch.ones(b, device=device))[:, None, None]
-        x_prev = ddim_step(x, guess, abar[step][:, None, None], a_prev)
-        answer = target_net.step(x_prev, previous.clamp(min=0), x0, known, target_memory, scale)
-        answer = torch.where((previous < 0)[:, None, None], guess, answer)
-    prediction = student.step(x, step, x0, known, student_memory, scale)
-    return masked_l2(prediction, answer, feature_mask * (1 - known))
-
-
-def distill_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    config = model.config
-    assert model.face is not None and model.body is not None and model.face_student is not None
-    assert model.body_student is not None and model.face_target is not None and model.body_target is not None
-    update_target(model.face_student, model.face_target, config.distill_ema)
-    update_target(model.body_student, model.body_target, config.distill_ema)
-    motion, audio, mask, guides, positions, valid = body_inputs(model, batch, generator)
-    b = len(motion)
-    speaker = batch["speaker"]
-    keep = torch.ones(b, 2, device=motion.device)
-    both_keep = torch.cat([keep, torch.zeros(b, 2, device=motion.device)])
-    face_cond = face_conditions(model, audio)
-    heard = face_cond[0]
-    with torch.no_grad():
-        teacher_face = model.face.memory([torch.cat([c, c]) for c in face_cond], both_keep, speaker.repeat(2))
-        target_face = model.face_target.memory(face_cond, keep, speaker)
-        teacher_body = model.body.memory(
-            [torch.cat([heard, heard])],
-            both_keep,
-            speaker.repeat(2),
-            guides.repeat(2, 1, 1),
-            positions.repeat(2, 1),
-            valid.repeat(2, 1),
-        )
-        target_body = model.body_target.memory([heard], keep, speaker, guides, positions, valid)
-    student_face = model.face_student.memory(face_cond, keep, speaker)
-    student_body = model.body_student.memory([heard], keep, speaker, guides, positions, valid)
-    face = consistency_loss(
-        model.face,
-        model.face_student,
-        model.face_target,
-        (teacher_face, target_face, student_face),
-        motion[..., FACE],
-        mask[..., FACE],
-        config.face_guidance_max,
-        config,
-        generator,
-    )
-    body = consistency_loss(
-        model.body,
-        model.body_student,
-        model.body_target,
-        (teacher_body, target_body, student_body),
-        motion[..., BODY],
-        mask[..., BODY],
-        config.body_guidance_max,
-        config,
-        generator,
-    )
-    return face + body, {"face": face.detach(), "body": body.detach()}

@@ -61,10 +61,10 @@ class FGDRecipe(Recipe):
         return window_data(corpus, config.window, max(1, config.window // 6), config.window, info, hears_audio=False)
 
     def build_model(self, config: FGDConfig, spec: DataSpec, stage: str) -> torch.nn.Module:
-        if config.window < 8 or config.channels < 1 or config.latent < 1:
-            raise UserError(
-                f"model 'fgd': window must be at least 8 frames and sizes positive (window {config.window})"
-            )
+        for name, low, high in (("window", 8, 3000), ("channels", 1, 4096), ("latent", 1, 4096)):
+            value = getattr(config, name)
+            if not low <= value <= high:
+                raise UserError(f"model 'fgd': --set {name}={value}: must be between {low} and {high}")
         parts = {k: list(v) for k, v in spec.info["parts"].items()}
         return FGDNetworks(parts, config)
 

@@ -10,7 +10,7 @@ random length (so the short windows of the generator's ``live`` mode are trained
 known-motion context the way the generator uses it: none, a block of ``context_frames`` at a
 random place (the reference's masks), or a prefix (the previous window's frames).
 
-Exported graphs, by stage: ``vq_encoder`` and ``vq_decoder`` (codes <-> motion); then
+Exported graphs (``probtalk_export.py``), by stage: ``vq_encoder`` and ``vq_decoder`` (codes <-> motion); then
 ``predictor_memory`` (the conditions of a window -> every layer's cross-attention keys and values
 and speaker modulation, run once per window) and ``predictor_step`` (tokens + that memory ->
 logits, run once per MaskGIT pass); then ``refiner``.
@@ -25,7 +25,6 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from convodrive.eval.distribution import fd_g
 from convodrive.models.common import masked_l1
@@ -39,13 +38,12 @@ from convodrive.training.recipe import (
     Batch,
     DataSpec,
     GraphSpec,
-    Recipe,
-    StartingPoint,
     StepContext,
     TrainingData,
     model_device,
     to_device,
 )
+from convodrive.training.staged import StagedRecipe
 from convodrive.training.windows import window_data
 
 _SMALL = {
@@ -127,7 +125,7 @@ _TINY = {
 }
 
 
-class ProbTalkRecipe(Recipe):
+class ProbTalkRecipe(StagedRecipe):
     name = "probtalk"
     description = (
         "ProbTalk (Liu et al., CVPR 2024): a product-quantised VAE of face and body motion (G codebooks of K codes, "
@@ -181,38 +179,12 @@ class ProbTalkRecipe(Recipe):
         info = {"window": config.window, "frames_per_token": config.frames_per_token}
         return window_data(corpus, config.window, max(1, config.window // 8), config.window, info)
 
-    def build_model(self, config: ProbTalkConfig, spec: DataSpec, stage: str) -> torch.nn.Module:
-        bands = int(spec.info["corpus"]["audio_features"]["bands"])
-        model = ProbTalk(config, rep.FEATURE_DIM, bands, len(spec.info["speakers"]), stage)
-        model.audio_norm.mean.copy_(torch.from_numpy(spec.arrays["audio_mean"]))
-        model.audio_norm.std.copy_(torch.from_numpy(spec.arrays["audio_std"]))
-        return model
+    def network(self, config: ProbTalkConfig, bands: int, speakers: int, stage: str) -> torch.nn.Module:
+        return ProbTalk(config, rep.FEATURE_DIM, bands, speakers, stage)
 
-    def initialise(self, model: torch.nn.Module, start: StartingPoint | None, spec: DataSpec, stage: str) -> None:
-        """A later stage starts from the previous stage's run, learnt on the same data."""
+    def inherited(self, model: torch.nn.Module) -> tuple[str, ...]:
         assert isinstance(model, ProbTalk)
-        needed = model.frozen_names
-        if not needed:
-            super().initialise(model, start, spec, stage)
-            return
-        previous = STAGES[STAGES.index(stage) - 1]
-        if start is None:
-            raise UserError(f"model 'probtalk': the {stage} stage starts from a trained {previous} stage: --init RUN")
-        for key in ("mean", "std", "audio_mean", "audio_std"):
-            if not np.allclose(start.spec.arrays[key], spec.arrays[key], atol=1e-5):
-                raise UserError(
-                    f"--init {start.path}: learnt from other data (its normalisation differs from this corpus's)"
-                )
-        own = model.state_dict()
-        for name in needed:
-            keys = [k for k in own if k.startswith(f"{name}.")]
-            bad = [k for k in keys if k not in start.weights or start.weights[k].shape != own[k].shape]
-            if bad:
-                raise UserError(
-                    f"--init {start.path}: holds no {name} network of these settings (a {start.stage} run; "
-                    f"mismatch at {bad[0]}): train stage {previous} first, with the same preset"
-                )
-        super().initialise(model, start, spec, stage)
+        return model.frozen_names
 
     # -- training --------------------------------------------------------------------------------
     def loss(
@@ -244,6 +216,8 @@ class ProbTalkRecipe(Recipe):
         self, model: torch.nn.Module, config: ProbTalkConfig, spec: DataSpec, stage: str
     ) -> Sequence[GraphSpec]:
         assert isinstance(model, ProbTalk)
+        from convodrive.training.recipes.probtalk_export import export_graphs
+
         return export_graphs(model, spec)
 
     def card(self, config: ProbTalkConfig, spec: DataSpec) -> str:
@@ -386,155 +360,3 @@ def refiner_loss(
     vel = masked_l1(refined.diff(dim=1), motion.diff(dim=1), counted)
     coarse_l1 = masked_l1(combined, motion, free)
     return rec + config.velocity_weight * vel, {"l1": rec.detach(), "velocity": vel.detach(), "coarse_l1": coarse_l1}
-
-
-# --------------------------------------------------------------------------------------- export
-class _Encoder(nn.Module):
-    def __init__(self, model: ProbTalk) -> None:
-        super().__init__()
-        self.model = model
-
-    def forward(self, motion: torch.Tensor) -> torch.Tensor:
-        return self.model.vq.encode(motion)
-
-
-class _Decoder(_Encoder):
-    def forward(self, codes: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
-        return self.model.vq.decode(codes)
-
-
-class _Memory(_Encoder):
-    def forward(  # type: ignore[override]
-        self, audio: torch.Tensor, known: torch.Tensor, known_mask: torch.Tensor, speaker: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        assert self.model.predictor is not None
-        return self.model.predictor.memory(self.model.audio_norm(audio), known, known_mask, speaker)
-
-
-class _Step(_Encoder):
-    def forward(  # type: ignore[override]
-        self, tokens: torch.Tensor, keys: torch.Tensor, values: torch.Tensor, styles: torch.Tensor
-    ) -> torch.Tensor:
-        assert self.model.predictor is not None
-        return self.model.predictor.logits(tokens, keys, values, styles)
-
-
-class _Refiner(_Encoder):
-    def forward(  # type: ignore[override]
-        self, motion: torch.Tensor, audio: torch.Tensor, known_mask: torch.Tensor, speaker: torch.Tensor
-    ) -> torch.Tensor:
-        assert self.model.refiner is not None
-        return self.model.refiner(motion, self.model.audio_norm(audio), known_mask, speaker)
-
-
-def export_graphs(model: ProbTalk, spec: DataSpec) -> list[GraphSpec]:
-    """The graphs of every stage ``model`` has; example sizes count tokens (8 frames each)."""
-    config, dim = model.config, rep.FEATURE_DIM
-    bands = int(spec.info["corpus"]["audio_features"]["bands"])
-    speakers = max(1, len(spec.info["speakers"]))
-    f, g = config.frames_per_token, config.groups
-    takes = 2
-
-    def f32(rng: np.random.Generator, *shape: int) -> torch.Tensor:
-        return torch.from_numpy(rng.standard_normal(shape).astype(np.float32))
-
-    def known_mask(rng: np.random.Generator, frames: int) -> torch.Tensor:
-        m = np.zeros((takes, frames, 1), np.float32)
-        m[0, : int(rng.integers(frames + 1))] = 1.0
-        return torch.from_numpy(m)
-
-    def codes(rng: np.random.Generator, tokens: int) -> torch.Tensor:
-        return torch.from_numpy(rng.integers(config.codes, size=(takes, tokens, g)))
-
-    def speaker(rng: np.random.Generator) -> torch.Tensor:
-        return torch.from_numpy(rng.integers(speakers, size=takes))
-
-    def audio(rng: np.random.Generator, frames: int) -> torch.Tensor:
-        return torch.from_numpy((rng.standard_normal((takes, frames, 2, bands)) * 3 - 8).astype(np.float32))
-
-    frames_axes = {0: "takes", 1: "frames"}
-    token_frames = {0: "takes", 1: f"{f}*tokens"}  # a network that downsamples by f takes whole tokens
-    graphs = [
-        GraphSpec(
-            "vq_decoder",
-            _Decoder(model).eval(),
-            ("codes",),
-            ("motion",),
-            lambda n, rng: (codes(rng, n),),
-            {"codes": {0: "takes", 1: "tokens"}},
-            description=f"(takes, tokens, {g}) codes -> (takes, {f}*tokens, {dim}) normalised motion",
-        )
-    ]
-    if model.stage == "vq":
-        graphs.insert(
-            0,
-            GraphSpec(
-                "vq_encoder",
-                _Encoder(model).eval(),
-                ("motion",),
-                ("codes",),
-                lambda n, rng: (f32(rng, takes, f * n, dim),),
-                {"motion": token_frames},
-                description=f"(takes, frames, {dim}) normalised motion, frames a multiple of {f} -> (takes, frames/{f}, {g}) codes",
-            ),
-        )
-    if model.predictor is not None:
-        heads, width, layers = config.heads, config.width, config.layers
-
-        def memory_inputs(n: int, rng: np.random.Generator) -> tuple[torch.Tensor, ...]:
-            frames = f * n
-            return audio(rng, frames), f32(rng, takes, frames, dim), known_mask(rng, frames), speaker(rng)
-
-        def step_inputs(n: int, rng: np.random.Generator) -> tuple[torch.Tensor, ...]:
-            tokens = rng.integers(config.codes + 1, size=(takes, n * g))
-            kv = (layers, takes, heads, n, width // heads)
-            return (
-                torch.from_numpy(tokens),
-                f32(rng, *kv),
-                f32(rng, *kv),
-                f32(rng, layers, takes, 6, width) * 0.1,
-            )
-
-        kv_axes = {1: "takes", 3: "memory"}
-        graphs += [
-            GraphSpec(
-                "predictor_memory",
-                _Memory(model).eval(),
-                ("audio", "known", "known_mask", "speaker"),
-                ("keys", "values", "styles"),
-                memory_inputs,
-                {"audio": token_frames, "known": token_frames, "known_mask": token_frames, "speaker": {0: "takes"}},
-                description=(
-                    f"once per window: (takes, frames, 2, {bands}) log-mel, (takes, frames, {dim}) known motion, "
-                    f"(takes, frames, 1) known mask, (takes,) speaker -> per layer cross-attention keys and values "
-                    f"({layers}, takes, {heads}, frames/{f}, {width // heads}) and speaker modulation ({layers}, takes, 6, {width})"
-                ),
-            ),
-            GraphSpec(
-                "predictor_step",
-                _Step(model).eval(),
-                ("tokens", "keys", "values", "styles"),
-                ("logits",),
-                step_inputs,
-                {"tokens": {0: "takes", 1: "tokens"}, "keys": kv_axes, "values": kv_axes, "styles": {1: "takes"}},
-                description=f"once per MaskGIT pass: (takes, tokens*{g}) ids ({config.mask_id} = masked) and the memory -> (takes, tokens*{g}, {config.codes}) logits",
-            ),
-        ]
-    if model.refiner is not None:
-
-        def refiner_inputs(n: int, rng: np.random.Generator) -> tuple[torch.Tensor, ...]:
-            frames = f * n + int(rng.integers(f))  # the refiner takes any number of frames
-            return f32(rng, takes, frames, dim), audio(rng, frames), known_mask(rng, frames), speaker(rng)
-
-        graphs.append(
-            GraphSpec(
-                "refiner",
-                _Refiner(model).eval(),
-                ("motion", "audio", "known_mask", "speaker"),
-                ("refined",),
-                refiner_inputs,
-                {"motion": frames_axes, "audio": frames_axes, "known_mask": frames_axes, "speaker": {0: "takes"}},
-                description=f"(takes, frames, {dim}) coarse motion with known frames in, log-mel, known mask, speaker -> refined motion",
-            )
-        )
-    return graphs

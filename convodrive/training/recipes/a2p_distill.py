@@ -1,0 +1,117 @@
+"""``a2p``'s distillation stage: consistency distillation of both denoisers (Song et al. 2023).
+
+As latent consistency models do, with the guidance scale as an input: from a noisy point at grid
+step n, the guided teacher's DDIM step to grid step n-1, and the student's exponential moving
+average's answer there, as the target of the student's answer at step n; at the grid's first step
+the target is the teacher's x0 itself.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from convodrive.models.a2p import A2P
+from convodrive.models.a2p_config import BODY, FACE, A2PConfig
+from convodrive.models.a2p_denoiser import Denoiser, Memory
+from convodrive.models.common import masked_l2
+from convodrive.neural.diffusion import ddim_step, noised
+from convodrive.training.recipe import Batch
+from convodrive.training.recipes.a2p_losses import alpha_bar, body_inputs, face_conditions, known_prefix
+
+
+@torch.no_grad()
+def update_target(student: nn.Module, target: nn.Module, decay: float) -> None:
+    for s, t in zip(student.parameters(), target.parameters()):
+        t.mul_(decay).add_(s.detach(), alpha=1 - decay)
+
+
+def consistency_loss(
+    teacher: Denoiser,
+    student: Denoiser,
+    target_net: Denoiser,
+    memories: tuple[Memory, Memory, Memory],
+    x0: torch.Tensor,
+    feature_mask: torch.Tensor,
+    guidance_max: float,
+    config: A2PConfig,
+    generator: torch.Generator,
+) -> torch.Tensor:
+    """One consistency-distillation term (see the module doc). ``memories``: the teacher's
+    (conditional rows, then unconditional), the target's and the student's."""
+    teacher_memory, target_memory, student_memory = memories
+    b, t, _ = x0.shape
+    device = x0.device
+    skip, points = config.distill_skip, config.diffusion_steps // config.distill_skip
+    known = known_prefix(b, t, config, generator).to(device)
+    n = torch.randint(1, points + 1, (b,), generator=generator).to(device)
+    step, previous = n * skip - 1, (n - 1) * skip - 1
+    scale = (1 + torch.rand(b, generator=generator) * (guidance_max - 1)).to(device)
+    noise = torch.randn(x0.shape, generator=generator).to(device)
+    abar = alpha_bar(config).to(device)
+    x = noised(x0, noise, abar[step][:, None, None])
+    with torch.no_grad():
+        both = teacher.step(
+            torch.cat([x, x]), torch.cat([step, step]), torch.cat([x0, x0]), torch.cat([known, known]), teacher_memory
+        )
+        cond, uncond = both[:b], both[b:]
+        guess = uncond + scale[:, None, None] * (cond - uncond)
+        guess = known * x0 + (1 - known) * guess
+        a_prev = torch.where(previous >= 0, abar[previous.clamp(min=0)], torch.ones(b, device=device))[:, None, None]
+        x_prev = ddim_step(x, guess, abar[step][:, None, None], a_prev)
+        answer = target_net.step(x_prev, previous.clamp(min=0), x0, known, target_memory, scale)
+        answer = torch.where((previous < 0)[:, None, None], guess, answer)
+    prediction = student.step(x, step, x0, known, student_memory, scale)
+    return masked_l2(prediction, answer, feature_mask * (1 - known))
+
+
+def distill_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    config = model.config
+    assert model.face is not None and model.body is not None and model.face_student is not None
+    assert model.body_student is not None and model.face_target is not None and model.body_target is not None
+    update_target(model.face_student, model.face_target, config.distill_ema)
+    update_target(model.body_student, model.body_target, config.distill_ema)
+    motion, audio, mask, guides, positions, valid = body_inputs(model, batch, generator)
+    b = len(motion)
+    speaker = batch["speaker"]
+    keep = torch.ones(b, 2, device=motion.device)
+    both_keep = torch.cat([keep, torch.zeros(b, 2, device=motion.device)])
+    face_cond = face_conditions(model, audio)
+    heard = face_cond[0]
+    with torch.no_grad():
+        teacher_face = model.face.memory([torch.cat([c, c]) for c in face_cond], both_keep, speaker.repeat(2))
+        target_face = model.face_target.memory(face_cond, keep, speaker)
+        teacher_body = model.body.memory(
+            [torch.cat([heard, heard])],
+            both_keep,
+            speaker.repeat(2),
+            guides.repeat(2, 1, 1),
+            positions.repeat(2, 1),
+            valid.repeat(2, 1),
+        )
+        target_body = model.body_target.memory([heard], keep, speaker, guides, positions, valid)
+    student_face = model.face_student.memory(face_cond, keep, speaker)
+    student_body = model.body_student.memory([heard], keep, speaker, guides, positions, valid)
+    face = consistency_loss(
+        model.face,
+        model.face_student,
+        model.face_target,
+        (teacher_face, target_face, student_face),
+        motion[..., FACE],
+        mask[..., FACE],
+        config.face_guidance_max,
+        config,
+        generator,
+    )
+    body = consistency_loss(
+        model.body,
+        model.body_student,
+        model.body_target,
+        (teacher_body, target_body, student_body),
+        motion[..., BODY],
+        mask[..., BODY],
+        config.body_guidance_max,
+        config,
+        generator,
+    )
+    return face + body, {"face": face.detach(), "body": body.detach()}
