@@ -23,9 +23,8 @@ def train_stats(corpus: Corpus) -> FeatureStats:
 
 def corpus_facts(corpus: Corpus) -> dict[str, Any]:
     """The corpus a model learned from, as its model folder and card name it."""
-    source = corpus.manifest.get("source", {})
+    source = {k: Path(v).name if _is_path(v) else v for k, v in corpus.manifest.get("source", {}).items()}
     return {
-        "path": str(corpus.folder),
         "name": corpus.folder.name,
         "hours": round(corpus.hours, 3),
         "conversations": len(corpus.conversations),
@@ -34,6 +33,11 @@ def corpus_facts(corpus: Corpus) -> dict[str, Any]:
         "audio_features": corpus.mel_spec.to_dict(),
         "licence": corpus.manifest.get("licence") or source.get("licence") or "that of the corpus's source data",
     }
+
+
+def _is_path(value: object) -> bool:
+    """An imported corpus's source names the user's folders: a model folder keeps only their names."""
+    return isinstance(value, str) and (value.startswith(("/", "~")) or "\\" in value)
 
 
 def audio_stats(corpus: Corpus, split: str = "train") -> tuple[np.ndarray, np.ndarray]:

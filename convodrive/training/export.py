@@ -292,12 +292,12 @@ def _model_meta(
         "architecture": ckpt.state["model_config"],
         "features": spec.info,
         "training": {
-            "corpus": ckpt.state.get("corpus"),
+            "corpus": Path(str(ckpt.state.get("corpus"))).name,
             "steps": ckpt.step,
             "train_config": ckpt.state.get("train_config"),
             "world_size": ckpt.state.get("world_size"),
             "validation": ckpt.state.get("validation", {}),
-            "checkpoint": str(ckpt.path),
+            "checkpoint": ckpt.path.name,  # a folder name: a model folder names no path of the machine
             "commit": _git_commit(),
             "torch": torch.__version__,
         },

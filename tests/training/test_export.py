@@ -34,6 +34,9 @@ def test_export_checks_parity_at_three_sizes_and_writes_a_verified_folder(fgd_ru
         assert len(errs) >= 3 and max(errs.values()) <= PARITY_TOLERANCE
     assert meta["features"]["layout"]["dim"] == 330 and meta["training"]["steps"] == 10
     assert "Model card: fgd" in (tmp_path / "model" / "MODEL_CARD.md").read_text()
+    # The run and its corpus lie in this machine's temporary folder: model.json names neither path.
+    assert str(tmp_path.parent.parent) not in (tmp_path / "model" / "model.json").read_text()
+    assert meta["training"]["checkpoint"].startswith("step-") and "path" not in meta["features"]["corpus"]
 
     # The runtime's features equal torch's at a size the exporter never saw.
     folder = load_model_folder(tmp_path / "model")

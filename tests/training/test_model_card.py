@@ -1,5 +1,5 @@
-"""Model cards travel with the weights: they name the command and the corpus's recipe, never a folder
-of the machine that trained them."""
+"""Model cards and model.json travel with the weights: they name the command and the corpus's recipe,
+never a folder of the machine that trained them."""
 
 from __future__ import annotations
 
@@ -80,3 +80,8 @@ def test_export_writes_the_command_and_the_corpus_recipe_not_its_folder(source: 
     assert machine_paths(card) == []
     assert "- command: `convodrive train fgd --corpus corpus2h --preset small --stage main --steps 10 --seed 3`" in card
     assert f"- corpus: corpus2h, 2.046 h, 67 conversations; {says}" in card
+
+
+@pytest.mark.parametrize("card", _shipped_cards(), ids=lambda p: str(p.parent.relative_to(REPO)))
+def test_no_shipped_model_json_names_a_folder_of_the_machine(card: Path) -> None:
+    assert machine_paths((card.parent / "model.json").read_text(encoding="utf-8")) == []
