@@ -4,7 +4,8 @@
     python examples/livekit_agent.py --backend render        # avatar.mp4 with the voice
 
 The user comes from a sound file (``--partner``, default the bundled dialogue's channel 1),
-paced as a microphone; a level-based turn detector ends the user's turns; a scripted line
+paced as a microphone; LiveKit's default VAD (local Silero) hears the user speak and a level-based
+turn detector ends the user's turns; a scripted line
 answers each; espeak-ng speaks it; convodrive plays the voice (player mode, ``--speaker``) and
 moves the body. With keys, the same structure runs on real services: give ``AgentSession``
 ``stt=``, ``llm=``, ``tts=`` and ``vad=`` plugins (and ``turn_handling`` with a turn detector),
@@ -89,13 +90,12 @@ async def converse(live: LiveSession, partner, seconds: float) -> None:
     session = AgentSession(llm=NoLLM(), turn_handling={"turn_detection": "manual"})
 
     def on_turn(change: str) -> None:
-        # With a VAD plugin LiveKit says this itself (user_state_changed, which attach maps).
+        # The user's speech start and stop come from LiveKit's own local VAD (user_state_changed,
+        # which attach maps); the turn's end would come from STT's final transcript.
         if change == "start":
-            live.event(Event.USER_SPEECH_START)
             if session.agent_state == "speaking":
                 session.interrupt()  # barge-in
         else:
-            live.event(Event.USER_SPEECH_STOP)
             live.event(Event.USER_TURN_END)
             session.generate_reply(user_input="(the user's turn)")
 

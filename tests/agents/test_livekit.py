@@ -111,7 +111,7 @@ class Scripted(Agent):
 async def converse(live: LiveSession, cut_after: float) -> tuple[AgentSession, io.AudioOutput, dict, list]:
     """A user turn, a reply played whole, a second reply interrupted ``cut_after`` seconds in;
     returns the session, its sink, when (monotonic) each step was sent, and the sink's reports."""
-    session = AgentSession(llm=StubLLM(), turn_handling={"turn_detection": "manual"})
+    session = AgentSession(vad=None, llm=StubLLM(), turn_handling={"turn_detection": "manual"})
     session.input.audio = Mic()
     sink: io.AudioOutput = ConvodriveAudioOutput(live) if live.player else FakeSpeaker()
     session.output.audio = sink
