@@ -136,8 +136,6 @@ class ConvodriveOutputTransport(BaseOutputTransport):
         super().__init__(params, **kwargs)
         self.session = session
         self._segment: Any = 0
-        self.ahead = session.self_lead + 0.05
-        """Seconds of voice a write may leave queued ahead of the speaker before it returns."""
 
     async def start(self, frame: StartFrame) -> None:
         await super().start(frame)
@@ -145,7 +143,7 @@ class ConvodriveOutputTransport(BaseOutputTransport):
 
     async def write_audio_frame(self, frame: OutputAudioRawFrame) -> bool:
         self.session.feed_self(frame.audio, frame.sample_rate, self._segment, frame.num_channels)
-        while self.session.self_backlog() > self.ahead:
+        while self.session.self_backlog() > self.session.write_ahead:
             await asyncio.sleep(0.005)
         return True
 

@@ -38,7 +38,7 @@ from convodrive.agents.pipecat import ConvodriveObserver, ConvodriveOutputTransp
 from convodrive.audio.source import ANALYSIS_RATE  # noqa: E402
 from convodrive.generators.base import Event  # noqa: E402
 from convodrive.pipeline.session import LiveSession  # noqa: E402
-from tests.pipeline.session.helpers import CHUNK, CLOSED, mouth, voice  # noqa: E402
+from tests.pipeline.session.helpers import CHUNK, CLOSED, eye_angle, kinds, mouth, voice  # noqa: E402
 
 RATE = ANALYSIS_RATE
 
@@ -122,22 +122,6 @@ def run(tmp_path, mode: str):
     finally:
         session.close()
     return session, output, marks
-
-
-def kinds(session: LiveSession) -> list[Event]:
-    out: list[Event] = []
-    for _, e in session.events:
-        if not out or out[-1] is not e.kind:
-            out.append(e.kind)
-    return out
-
-
-def eye_angle(tmp_path) -> np.ndarray:
-    from convodrive.motion.npz import load_clip
-    from convodrive.motion.skeleton import JOINT_INDEX as J
-
-    clip = load_clip(tmp_path / "motion.npz")
-    return np.degrees(np.linalg.norm(clip.pose[:, J["left_eye_smplhf"]], axis=1))
 
 
 @pytest.mark.timeout(120)

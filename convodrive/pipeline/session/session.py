@@ -321,6 +321,13 @@ class LiveSession:
             return 0.0
         return self.voice.queued_seconds() + self.speaker.ring.available() / self.speaker.rate
 
+    @property
+    def write_ahead(self) -> float:
+        """Player mode: seconds of voice a writer paced to playing keeps fed ahead of the speaker:
+        what the feeder keeps in the ring (``self_lead`` plus its jitter) and ``ahead`` spare, so a
+        write that comes a little late leaves no gap of silence in the voice."""
+        return self.self_lead + SELF_JITTER + self.request.ahead
+
     def on_playback(self, callback: Callable[[PlaybackReport], None]) -> None:
         """Player mode: ``callback`` hears when each segment starts and finishes playing (from the
         session's thread: hand it to your loop with ``call_soon_threadsafe``)."""

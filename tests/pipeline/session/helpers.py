@@ -10,7 +10,7 @@ import time
 import numpy as np
 
 from convodrive.audio.source import ANALYSIS_RATE
-from convodrive.pipeline.session import LiveSession
+from convodrive.pipeline.session import Event, LiveSession
 
 CLOSED = 0.05
 """jawOpen below this is a closed mouth."""
@@ -64,3 +64,21 @@ def onset(times: np.ndarray, jaw: np.ndarray, after: float, level: float = 0.15)
     """The first dispatch time after ``after`` at which the mouth is open past ``level``."""
     open_ = np.nonzero((times > after) & (jaw > level))[0]
     return float(times[open_[0]]) if len(open_) else None
+
+
+def kinds(session: LiveSession) -> list[Event]:
+    """The kinds of events the session sent, repeats folded."""
+    out: list[Event] = []
+    for _, e in session.events:
+        if not out or out[-1] is not e.kind:
+            out.append(e.kind)
+    return out
+
+
+def eye_angle(out_dir) -> np.ndarray:
+    """Degrees the left eye turned, per frame of the recorder's motion.npz in ``out_dir``."""
+    from convodrive.motion.npz import load_clip
+    from convodrive.motion.skeleton import JOINT_INDEX as J
+
+    clip = load_clip(out_dir / "motion.npz")
+    return np.degrees(np.linalg.norm(clip.pose[:, J["left_eye_smplhf"]], axis=1))

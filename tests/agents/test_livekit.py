@@ -1,0 +1,213 @@
+"""LiveKit's real ``AgentSession`` driving a live session, as LiveKit's own tests run it: no room
+(so no server), a stub LLM, an agent whose ``llm_node`` thinks a while and answers with a line and
+whose ``tts_node`` yields 20 ms frames of espeak-ng speech, a paced microphone, and in follower mode
+a fake speaker that sleeps each frame's duration and reports as RoomIO's sink does (started at its
+first frame, progressed and finished at the segment's end or clear). ``record=False`` and no job
+context: nothing is recorded or uploaded. The recorder is the backend."""
+
+from __future__ import annotations
+
+from tests.conftest import require
+
+pytestmark = [require("livekit"), require("espeak")]
+
+import asyncio  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from livekit import rtc  # noqa: E402
+from livekit.agents import Agent, AgentSession, llm  # noqa: E402
+from livekit.agents.voice import io  # noqa: E402
+from livekit.agents.voice.events import UserInputTranscribedEvent, UserStateChangedEvent  # noqa: E402
+
+from convodrive.agents.livekit import ConvodriveAudioOutput, attach  # noqa: E402
+from convodrive.audio.source import ANALYSIS_RATE  # noqa: E402
+from convodrive.generators.base import Event  # noqa: E402
+from convodrive.pipeline.session import LiveSession  # noqa: E402
+from tests.pipeline.session.helpers import CLOSED, eye_angle, kinds, mouth, voice  # noqa: E402
+
+RATE = ANALYSIS_RATE
+FRAME = 0.02
+THINK = 1.0
+
+
+class StubLLM(llm.LLM):
+    """LiveKit wants an LLM before it generates a reply, even with ``llm_node`` overridden."""
+
+    def chat(self, **kwargs):  # type: ignore[override]
+        raise NotImplementedError
+
+
+class Mic(io.AudioInput):
+    """20 ms of silence every 20 ms."""
+
+    def __init__(self) -> None:
+        super().__init__(label="mic")
+
+    async def __anext__(self) -> rtc.AudioFrame:
+        await asyncio.sleep(FRAME)
+        n = int(FRAME * RATE)
+        return rtc.AudioFrame(bytes(2 * n), RATE, 1, n)
+
+
+class FakeSpeaker(io.AudioOutput):
+    """A sink whose capture takes as long as the frame plays; reports as RoomIO's does."""
+
+    def __init__(self) -> None:
+        super().__init__(label="fake-speaker", capabilities=io.AudioOutputCapabilities(pause=True), sample_rate=RATE)
+        self.starts: list[float] = []
+        self._started: float | None = None
+        self._pushed = 0.0
+        self._pending: asyncio.Handle | None = None
+
+    async def capture_frame(self, frame: rtc.AudioFrame) -> None:
+        await super().capture_frame(frame)
+        if self._started is None:
+            self._started = time.time()
+            self.starts.append(time.monotonic())
+            self.on_playback_started(created_at=self._started)
+        await asyncio.sleep(frame.duration)
+        self._pushed += frame.duration
+
+    def _finish(self, interrupted: bool) -> None:
+        started, played = self._started, self._pushed
+        self._started, self._pushed = None, 0.0
+        if started is not None:
+            self.on_playback_progressed(started_at=started, offset=0.0, duration=played)
+            self.on_playback_finished(playback_position=played, interrupted=interrupted)
+
+    def flush(self) -> None:
+        super().flush()  # what was captured has played: finished once the loop turns, unless cleared
+        self._pending = asyncio.get_running_loop().call_soon(self._finish, False)
+
+    def clear_buffer(self) -> None:
+        if self._pending is not None:
+            self._pending.cancel()
+        self._finish(True)
+
+
+class Scripted(Agent):
+    """Thinks ``THINK`` seconds, then says a line; the first reply is 2 s of speech."""
+
+    def __init__(self) -> None:
+        super().__init__(instructions="answer")
+        self.replies = 0
+
+    async def llm_node(self, chat_ctx, tools, model_settings):  # type: ignore[override]
+        await asyncio.sleep(THINK)
+        yield "The train leaves at nine."
+
+    async def tts_node(self, text, model_settings):  # type: ignore[override]
+        async for _ in text:
+            pass
+        self.replies += 1
+        pcm = voice() if self.replies > 1 else voice()[: 2 * RATE]
+        n = int(FRAME * RATE)
+        for i in range(0, len(pcm) - n + 1, n):
+            yield rtc.AudioFrame(pcm[i : i + n].tobytes(), RATE, 1, n)
+
+
+async def converse(live: LiveSession, cut_after: float) -> tuple[AgentSession, io.AudioOutput, dict, list]:
+    """A user turn, a reply played whole, a second reply interrupted ``cut_after`` seconds in;
+    returns the session, its sink, when (monotonic) each step was sent, and the sink's reports."""
+    session = AgentSession(vad=None, llm=StubLLM(), turn_handling={"turn_detection": "manual"})
+    session.input.audio = Mic()
+    sink: io.AudioOutput = ConvodriveAudioOutput(live) if live.player else FakeSpeaker()
+    session.output.audio = sink
+    await session.start(Scripted(), record=False)
+    attach(session, live)
+    reports: list = []
+    sink.on("playback_started", lambda ev: reports.append(("started", time.monotonic(), ev)))
+    sink.on("playback_finished", lambda ev: reports.append(("finished", time.monotonic(), ev)))
+    marks: dict = {}
+    while live.time_at(time.monotonic()) is None:  # the run starts with the partner's audio
+        await asyncio.sleep(0.01)
+    await asyncio.sleep(0.7)
+    session.emit("user_state_changed", UserStateChangedEvent(old_state="listening", new_state="speaking"))
+    await asyncio.sleep(0.8)
+    session.emit("user_state_changed", UserStateChangedEvent(old_state="speaking", new_state="listening"))
+    session.emit("user_input_transcribed", UserInputTranscribedEvent(transcript="when?", is_final=True))
+    marks["turn_end"] = time.monotonic()
+    await session.generate_reply(user_input="When does the train leave?")
+    await asyncio.sleep(0.3)
+    marks["reply2"] = time.monotonic()
+    handle = session.generate_reply(user_input="And then?")
+    while sum(r[0] == "started" for r in reports) < 2:
+        await asyncio.sleep(0.005)
+    await asyncio.sleep(cut_after)
+    marks["cut"] = time.monotonic()
+    session.interrupt()
+    await asyncio.wait_for(handle.wait_for_playout(), 5)
+    marks["interrupted"] = handle.interrupted
+    await asyncio.sleep(0.8)
+    await session.aclose()
+    return session, sink, marks, reports
+
+
+def run(tmp_path, mode: str):
+    live = LiveSession.open(
+        mode=mode, backends=("record",), out_dir=tmp_path, generator_options={"phones": False}, self_rate=RATE
+    )
+    try:
+        _, sink, marks, reports = asyncio.run(converse(live, cut_after=1.0))
+    finally:
+        live.close()
+    return live, sink, marks, reports
+
+
+def check_thinking(tmp_path, live: LiveSession, speaking_at: float, shown: float) -> None:
+    """From the first THINKING_START to ``speaking_at`` (time line): eyes away, mouth shut."""
+    think_at = [e.at for _, e in live.events if e.kind is Event.THINKING_START][0]
+    eyes = eye_angle(tmp_path)
+    thinking = slice(int((think_at + 0.3) * 30), int((speaking_at - 0.05) * 30))
+    before = slice(int((think_at - 0.6) * 30), int((think_at - 0.1) * 30))
+    assert eyes[thinking].mean() > eyes[before].mean() + 8.0
+    times, jaw = mouth(live)
+    assert jaw[(times > shown + 0.1) & (times < shown + THINK - 0.1)].max() < CLOSED
+
+
+@pytest.mark.timeout(120)
+def test_follower_behind_livekits_audio_output(tmp_path):
+    live, speaker, marks, reports = run(tmp_path, "follower")
+    order = kinds(live)
+    assert order[:4] == [Event.USER_SPEECH_START, Event.USER_SPEECH_STOP, Event.USER_TURN_END, Event.THINKING_START]
+    assert order.index(Event.SPEAKING_START) > order.index(Event.THINKING_START)
+    assert order.index(Event.INTERRUPTED) > order.index(Event.SPEAKING_START)
+    assert marks["interrupted"] and [r[2].interrupted for r in reports if r[0] == "finished"] == [False, True]
+    # Played-time anchors: each reply starts on the time line within one frame of the fake speaker.
+    starts = [e.at for _, e in live.events if e.kind is Event.SPEAKING_START and "segment" in e.info]
+    assert len(starts) == 2 and len(speaker.starts) == 2
+    for at, played in zip(starts, speaker.starts, strict=True):
+        assert abs(at - (live.time_at(played) + live.delay)) < FRAME + 0.005
+    # The interruption: the mouth moves before it and is shut 100 ms after it shows (delay late).
+    times, jaw = mouth(live)
+    shown = marks["cut"] + live.delay
+    assert jaw[(times > shown - 0.8) & (times < shown - 0.05)].max() > 0.2
+    assert jaw[times > shown + 0.1].max() < CLOSED
+    check_thinking(tmp_path, live, starts[0], marks["turn_end"] + live.delay)
+
+
+@pytest.mark.timeout(120)
+def test_player_plays_through_convodrive_audio_output(tmp_path):
+    live, _, marks, reports = run(tmp_path, "player")
+    order = kinds(live)
+    assert order[:4] == [Event.USER_SPEECH_START, Event.USER_SPEECH_STOP, Event.USER_TURN_END, Event.THINKING_START]
+    assert order.index(Event.SPEAKING_START) > order.index(Event.THINKING_START)
+    assert Event.INTERRUPTED in order[order.index(Event.SPEAKING_START) :]
+    finished = [r[2] for r in reports if r[0] == "finished"]
+    assert marks["interrupted"] and [f.interrupted for f in finished] == [False, True]
+    assert abs(finished[0].playback_position - 2.0) < 0.03  # the whole first reply played, no gap
+    played = live.speaker.samples()
+    heard = np.nonzero(np.abs(played) > 0.05)[0] / RATE
+    # LiveKit's playback_started is told when the speaker played the reply's first sample.
+    first_heard = live.speaker.mono_of(heard[0])
+    started = [r for r in reports if r[0] == "started"]
+    assert abs(started[0][2].created_at - (time.time() - time.monotonic() + first_heard)) < FRAME + 0.01
+    cut = int((live.speaker.position_at(marks["cut"]) + 0.03) * RATE)
+    assert np.abs(played[cut:]).max() < 1e-6  # nothing of the cut reply plays after the cut
+    times, jaw = mouth(live)
+    assert jaw[(times > marks["cut"] - 0.8) & (times < marks["cut"])].max() > 0.2
+    assert jaw[times > marks["cut"] + 0.1].max() < CLOSED
+    speaking = [e.at for _, e in live.events if e.kind is Event.SPEAKING_START][0]
+    check_thinking(tmp_path, live, speaking, marks["turn_end"])
