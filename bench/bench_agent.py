@@ -102,8 +102,8 @@ def run(mode: str, backend: str, replies: int) -> dict:
         result = {
             "mode": mode,
             "backend": backend,
-            "tts_chunk_to_sent_ms": figures["self_fed_to_sent"].get(backend),
-            "partner_capture_to_sent_ms": figures["partner_capture_to_sent"].get(backend),
+            "tts_chunk_to_sent_ms": figures["latency_ms"]["self_fed_to_sent"].get(backend),
+            "partner_capture_to_sent_ms": figures["latency_ms"]["partner_capture_to_sent"].get(backend),
             "interruption_to_mouth_shut_ms": [round(x, 1) for x in shut],
         }
         if mode == "player":
@@ -113,7 +113,7 @@ def run(mode: str, backend: str, replies: int) -> dict:
             motion_mono = times[mouth_onsets(jaw)] if len(jaw) else np.zeros(0)
             result["audio_motion_offset"] = pair_onsets(audio_mono, motion_mono).summary()
         else:
-            result["delay_ms"] = figures["delay_ms"]
+            result["delay_ms"] = figures["latency_ms"]["follower_delay"]
         return result
 
 
