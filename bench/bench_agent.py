@@ -250,10 +250,10 @@ def figures(adapter: str, s: LiveSession, script: Script, backend: str) -> dict:
         "adapter": adapter,
         "mode": s.request.mode,
         "first_chunk_to_dispatch_ms": [round(x, 1) for x in first],
-        "chunk_to_sent_ms": report["self_fed_to_sent"].get(backend),
+        "chunk_to_sent_ms": report["latency_ms"]["self_fed_to_sent"].get(backend),
         "interruption_to_mouth_shut_ms": shut,
-        "self_lead_ms": report["self_lead_ms"],
-        "delay_ms": report["delay_ms"],
+        "self_lead_ms": report["latency_ms"]["self_lead"],
+        "delay_ms": report["latency_ms"]["follower_delay"],
     }
     if s.player and s.speaker is not None and hasattr(s.speaker, "samples"):
         played = s.speaker.samples()

@@ -8,7 +8,7 @@ import sys
 
 from convodrive.cli.drive import exit_code, print_result
 from convodrive.cli.options import add_motion_options, plugin_options
-from convodrive.pipeline import LiveRequest, live
+from convodrive.pipeline import SessionRequest, live
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -88,10 +88,10 @@ def run(args: argparse.Namespace) -> int:
 
         raise UserError(f"--self-rate must be between 8000 and 192000 Hz, got {args.self_rate}")
     gen_options, backend_options = plugin_options(args)
-    request = LiveRequest(
+    request = SessionRequest(
         partner=args.partner,
-        self_voice=args.self_voice,
-        play=args.play,
+        voice=args.self_voice,
+        speaker=args.play,
         monitor=args.monitor,
         self_rate=args.self_rate,
         seconds=args.seconds,

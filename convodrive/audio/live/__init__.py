@@ -9,5 +9,5 @@
 - ``devices``: finding and listing devices; ``timeline``: one voice at the analysis rate.
 
 The clock that reads the playback position is ``convodrive.scheduler.clock.PlaybackClock``; the
-run that wires all of it is ``convodrive.pipeline.live``.
+run that wires all of it is ``convodrive.pipeline.session`` (``convodrive live`` runs one).
 """

@@ -64,6 +64,14 @@ class SampleRing:
             self.overruns += 1
             self.overrun_samples += len(samples) - written
 
+    def blank(self, start: int) -> None:
+        """Silence what is written from position ``start`` (at least the read position) on: queued
+        voice an interruption drops. The reader may be mid-block; what it has taken stays."""
+        stop = self.write_pos
+        start = max(int(start), self.read_pos)
+        if stop > start:
+            self._buf[np.arange(start, stop) % self.capacity] = 0.0
+
     def _copy_in(self, pos: int, data: np.ndarray) -> None:
         start = pos % self.capacity
         first = min(len(data), self.capacity - start)

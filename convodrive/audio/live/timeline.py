@@ -35,6 +35,17 @@ class Timeline:
             self.append(np.zeros(missing, np.float32))
         return max(missing, 0)
 
+    def blank(self, start: int) -> None:
+        """Silence the samples from position ``start`` on that are not yet taken: what an
+        interruption must not let the generator hear (a voice that will not be played)."""
+        with self._lock:
+            pos = self.taken
+            for part in self._parts:
+                lo = max(start - pos, 0)
+                if lo < len(part):
+                    part[lo:] = 0.0
+                pos += len(part)
+
     def take(self, stop: int) -> np.ndarray:
         """Remove and return the samples from ``taken`` up to ``stop`` (clipped to ``end``)."""
         with self._lock:

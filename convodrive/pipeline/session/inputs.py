@@ -18,7 +18,6 @@ import numpy as np
 from convodrive.audio.live.capture import Captured, PartnerInput
 from convodrive.audio.live.ring import SampleRing
 from convodrive.audio.live.self_voice import VoiceSource
-from convodrive.audio.live.timeline import Timeline
 from convodrive.audio.resample import StreamResampler
 from convodrive.audio.source import ANALYSIS_RATE
 
@@ -232,27 +231,3 @@ class QueuedVoice(VoiceSource):
 
     def streaming(self) -> bool:
         return self._current is not None and self._current not in self.ended
-
-
-class ClearableTimeline(Timeline):
-    """A time line whose samples not yet taken can be silenced: what a clear must not let the
-    generator hear (the agent's voice that will not be played)."""
-
-    def blank(self, start: int) -> None:
-        with self._lock:
-            pos = self.taken
-            for part in self._parts:
-                lo = max(start - pos, 0)
-                if lo < len(part):
-                    part[lo:] = 0.0
-                pos += len(part)
-
-
-def blank_ring(ring: SampleRing, start: int) -> None:
-    """Silence what the ring holds from position ``start`` (at least its read position) on."""
-    stop = ring.write_pos
-    start = max(start, ring.read_pos)
-    if stop <= start:
-        return
-    idx = np.arange(start, stop) % ring.capacity
-    ring._buf[idx] = 0.0  # noqa: SLF001 (a ring method the live split may add: one writer, never blocking)

@@ -39,3 +39,28 @@ def test_wraps_around() -> None:
         ring.write(data[i : i + 7])
         out.append(ring.read(7))
     np.testing.assert_array_equal(np.concatenate(out), data)
+
+
+def test_blank_silences_what_is_queued_from_a_position_on() -> None:
+    """An interruption: what the reader has not reached from ``start`` on becomes silence, across
+    the wrap; what was read, and what is written afterwards, is untouched."""
+    ring = SampleRing(10)
+    ring.write(np.arange(1, 9, dtype=np.float32))
+    ring.read(6)
+    ring.write(np.full(6, 9.0, np.float32))  # positions 8..13 wrap around the buffer
+    ring.blank(3)  # before the read position: blanks from the read position (6) on
+    assert np.all(ring.read(8) == 0.0)
+    ring.write(np.arange(1, 5, dtype=np.float32))
+    ring.blank(16)
+    np.testing.assert_array_equal(ring.read(4), [1, 2, 0, 0])
+
+
+def test_timeline_blank_silences_what_is_not_yet_taken() -> None:
+    from convodrive.audio.live.timeline import Timeline
+
+    line = Timeline()
+    line.append(np.ones(5, np.float32))
+    line.append(np.full(5, 2.0, np.float32))
+    np.testing.assert_array_equal(line.take(3), [1, 1, 1])
+    line.blank(4)
+    np.testing.assert_array_equal(line.take(10), [1, 0, 0, 0, 0, 0, 0])
