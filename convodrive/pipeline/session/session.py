@@ -32,7 +32,7 @@ from convodrive.generators.base import Event, Generator
 from convodrive.pipeline.session.inputs import PushedPartner, QueuedVoice, Segment, as_mono
 from convodrive.pipeline.session.playing import PlaybackReport
 from convodrive.pipeline.session.running import SessionRequest, SessionRun
-from convodrive.pipeline.session.sources import Speaker
+from convodrive.pipeline.session.sources import SELF_JITTER, Speaker
 
 USER_EVENTS = frozenset(
     {Event.USER_SPEECH_START, Event.USER_SPEECH_STOP, Event.USER_TURN_START, Event.USER_AWAY, Event.USER_BACK}
