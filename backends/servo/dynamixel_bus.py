@@ -34,6 +34,7 @@ class DynamixelBus(SerialBus):
     COMM_RX_CORRUPT = sdk.COMM_RX_CORRUPT
     PKT_ID, PKT_ERROR, PKT_PARAMETER0 = 4, 8, 9  # status packet offsets (PARAMETER0 after the error byte)
     STATUS_OVERHEAD = 11
+    FAULT_SOURCE = "Hardware_Error_Status"
     sdk = sdk
 
     def __init__(self, port: str, motors: list[Motor], **kw: Any) -> None:
@@ -106,6 +107,18 @@ class DynamixelBus(SerialBus):
         """Servos whose status packets carried the hardware-alert bit since the last call."""
         alerts, self._alert = self._alert, set()
         return alerts
+
+    def take_new_faults(self) -> list[tuple[str, str, int]]:
+        """(joint, fault, Hardware_Error_Status) for each fault seen for the first time since the
+        last call: the status register of every servo whose status packets raised the alert bit."""
+        new = []
+        for name in sorted(self.take_alerts()):
+            status = self.read("Hardware_Error_Status", name)
+            if status is not None:
+                seen = set(self.health[name].faults_seen)
+                self.note_hardware_error(name, status)
+                new += [(name, fault, status) for fault in sorted(self.health[name].faults_seen - seen)]
+        return new
 
     def note_hardware_error(self, name: str, status: int) -> None:
         health = self.health[name]

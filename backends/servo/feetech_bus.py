@@ -37,6 +37,7 @@ class FeetechBus(SerialBus):
     PKT_ID, PKT_ERROR, PKT_PARAMETER0 = 2, 4, 5
     STATUS_OVERHEAD = 6
     """Bytes of a status packet around its data: header 2, id, length, error, checksum."""
+    FAULT_SOURCE = "status error byte"
     sdk = sdk
 
     def __init__(self, port: str, motors: list[Motor], **kw: Any) -> None:

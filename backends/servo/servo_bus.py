@@ -100,6 +100,8 @@ class SerialBus:
     PKT_PARAMETER0: int
     STATUS_OVERHEAD: int
     """Bytes of a status packet around its data."""
+    FAULT_SOURCE: str
+    """Where the fault bits of ``take_new_faults`` come from, for the events that name them."""
     sdk: Any
     """The SDK module (``GroupSyncWrite``, ``GroupSyncRead``)."""
 
@@ -140,6 +142,21 @@ class SerialBus:
         health.last_seen = time.monotonic()
         health.consecutive_failures = 0
         health.backoff_until = 0.0
+
+    def ping(self, servo_id: int) -> Any:
+        """What the servo says it is, or None when nothing answers."""
+        raise NotImplementedError
+
+    def read(self, register: str, name: str) -> int | None:
+        raise NotImplementedError
+
+    def write(self, register: str, name: str, value: int) -> bool:
+        """True when the servo acknowledged the write."""
+        raise NotImplementedError
+
+    def take_new_faults(self) -> list[tuple[str, str, int]]:
+        """(joint, fault, fault bits) for each fault seen for the first time since the last call."""
+        raise NotImplementedError
 
     def _refused(self, error: int) -> bool:
         """Whether a status packet's error byte says the servo refused the request."""
