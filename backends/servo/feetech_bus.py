@@ -16,16 +16,19 @@ failure raises ``PortLost``. One thread at a time: ``lock`` serialises callers.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import scservo_sdk as sdk
 
 from convodrive.backends.servo import serial_port
-from convodrive.backends.servo.feetech_table import identify
+from convodrive.backends.servo.feetech_table import STS, identify
 from convodrive.backends.servo.serial_port import ShortReply
 from convodrive.backends.servo.servo_bus import Motor, SerialBus, ServoHealth
 
 __all__ = ["FeetechBus", "Motor", "ServoHealth"]
+
+FIRMWARE_ADDRESS = STS.reg("Firmware_Major_Version").address  # major, then minor: the same in every series
 
 
 class FeetechPort(serial_port.LatencyPort, sdk.PortHandler):  # type: ignore[misc]
@@ -63,6 +66,17 @@ class FeetechBus(SerialBus):
                 if data is not None:
                     return identify(data)
         return None
+
+    def scan(self, ids: Iterable[int] = range(253)) -> dict[int, tuple[str, str]]:
+        """Every servo among ``ids`` that answers a ping, one id at a time (Feetech servos have no
+        broadcast ping): id -> (model name, firmware "major.minor")."""
+        found = {}
+        for servo_id in ids:
+            model = self.ping(servo_id)
+            if model is not None:
+                firmware = self._read_raw(servo_id, FIRMWARE_ADDRESS, 2)
+                found[servo_id] = (model, "-" if firmware is None else f"{firmware[0]}.{firmware[1]}")
+        return found
 
     def _read_raw(self, servo_id: int, address: int, length: int) -> list[int] | None:
         try:
