@@ -34,7 +34,7 @@ from convodrive.backends.reachy import pose as rp
 from convodrive.backends.reachy.expression import Expression
 from convodrive.backends.reachy.link import DaemonLink
 from convodrive.backends.reachy.tracking import follow_figures
-from convodrive.backends.servo.servo_report import percentiles
+from convodrive.backends.servo.servo_report import latency_summary
 from convodrive.motion.channels import ConversationState
 from convodrive.motion.targets import TargetFrame, TargetSpec
 from convodrive.plugins.options import PluginOptions, option
@@ -329,7 +329,7 @@ class ReachyMiniBackend(Backend):
             "disconnects": link.disconnects if link else 0,
             "reconnects": link.reconnects if link else 0,
             "readbacks_off_command": self._counts["readbacks_off_command"],
-            "set_target_ms": percentiles(self._send_ms),
+            "set_target_ms": latency_summary(self._send_ms),
             "follow": follow_figures(sent, list(link.readback) if link else []),
             "liveliness": self._liveliness(),
             "eased_to_neutral": self._eased,

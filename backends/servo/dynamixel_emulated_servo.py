@@ -1,5 +1,5 @@
 """One emulated Dynamixel servo: its whole control table in RAM and a first-order position model
-(and ``LoggedWrite``, one register write as the servo saw it).
+(``bus_emulator.LoggedWrite`` is one register write as the servo saw it).
 
 A write changes later reads, EEPROM writes need torque off, Goal_Position outside the position
 limits is refused, and Present_Position slews toward Goal_Position at the profile velocity (or the
@@ -8,7 +8,6 @@ velocity limit when the profile is 0) while torque is on. ``dynamixel_emulator``
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 
 from convodrive.backends.servo import dynamixel_packet as dp
@@ -41,6 +40,10 @@ class EmulatedServo:
         for name, value in self.table.defaults.items():
             self._set(name, value)
         self._present = float(self.get("Present_Position"))
+
+    def power_cycle(self) -> None:
+        """Power back after an outage: as a REBOOT (RAM lost, torque off)."""
+        self.reboot()
 
     def reboot(self) -> None:
         """RAM back to defaults, EEPROM kept, errors cleared (what REBOOT does)."""
@@ -135,21 +138,3 @@ class EmulatedServo:
             self._present = goal if abs(delta) <= step else self._present + step * (1 if delta > 0 else -1)
             self._set("Moving", int(abs(goal - self._present) > 0.5))
         self._set("Present_Position", int(round(self._present)))
-
-
-@dataclasses.dataclass
-class LoggedWrite:
-    """One accepted register write, as the servo saw it (emulator clock)."""
-
-    time: float
-    servo_id: int
-    value: int
-    inst: int = dp.WRITE
-    """The instruction that carried it (WRITE, SYNC_WRITE, BULK_WRITE, ACTION)."""
-    packet: int = 0
-    """The ordinal of the packet that carried it: writes of one SYNC_WRITE share it."""
-
-    @property
-    def tick(self) -> int:
-        """For goal positions: the goal in ticks."""
-        return self.value

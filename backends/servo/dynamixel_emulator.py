@@ -1,7 +1,9 @@
 """A stateful Dynamixel Protocol 2.0 bus on a pseudo-terminal, for tests and for users without a robot.
 
 The servos on it are ``dynamixel_emulated_servo.EmulatedServo`` (each a whole control table with
-a position model). Replies are delayed by their time on the wire at the emulated baud rate.
+a position model); this module parses and answers Protocol 2.0 packets. Reply timing (wire time at
+the emulated baud rate, Return_Delay_Time) and fault injection are ``bus_emulator.BusEmulator``'s,
+shared with the Feetech emulator.
 
 Faults are injected on demand, through the API or on the command line (``emulator_faults``):
 dropped or CRC-corrupted replies, short replies (a well-formed status packet with one data byte too
@@ -14,22 +16,21 @@ of its own.
 from __future__ import annotations
 
 import collections
-import random
-import threading
 import time
 from collections.abc import Callable, Iterable
 
 from convodrive.backends.servo import dynamixel_packet as dp
-from convodrive.backends.servo.dynamixel_emulated_servo import Clock, EmulatedServo, LoggedWrite
+from convodrive.backends.servo.bus_emulator import BusEmulator, Clock, LoggedWrite
+from convodrive.backends.servo.dynamixel_emulated_servo import EmulatedServo
 from convodrive.backends.servo.dynamixel_table import encode
 from convodrive.backends.servo.dynamixel_table import model as lookup_model
-from convodrive.backends.servo.emulator_faults import SERVO_FAULTS, Fault
-from convodrive.backends.servo.pty_server import PtyDevice, PtyServer
-from convodrive.plumbing.errors import UserError
+from convodrive.backends.servo.emulator_faults import Fault
 
 
-class DynamixelEmulator(PtyDevice):
+class DynamixelEmulator(BusEmulator):
     """Servos on one emulated bus. A context manager; ``port`` is the path to open."""
+
+    servos: dict[int, EmulatedServo]
 
     def __init__(
         self,
@@ -44,200 +45,36 @@ class DynamixelEmulator(PtyDevice):
     ) -> None:
         """``on_torque(servo_id, on, why)`` hears every change of a servo's torque, whoever made it."""
         spec = lookup_model(model)
-        self.clock = clock
-        self.baudrate = baudrate
-        self.servos: dict[int, EmulatedServo] = {i: EmulatedServo(i, spec, clock) for i in ids}
-        self.goal_log: list[LoggedWrite] = []
-        self.torque_log: list[LoggedWrite] = []  # every accepted Torque_Enable write
-        self.sync_read_times: list[float] = []
-        """When each SYNC_READ came in (emulator clock): a driver's reads, against its goals."""
-        self.counters = {
-            "packets": 0,
-            "replies": 0,
-            "dropped": 0,
-            "corrupted": 0,
-            "shortened": 0,
-            "crc_errors_in": 0,
-            "refused_goals": 0,
-        }
+        servos = {i: EmulatedServo(i, spec, clock) for i in ids}
+        counters = ("crc_errors_in", "refused_goals")
+        super().__init__(
+            servos,
+            baudrate=baudrate,
+            link=link,
+            clock=clock,
+            seed=seed,
+            on_torque=on_torque,
+            counters=counters,
+            name="dynamixel-emulator",
+        )
         self.requests: collections.Counter[tuple[int, int]] = collections.Counter()
         """Requests each servo was asked to answer, by (servo id, instruction): tests wait on these."""
-        self.unanswered: collections.Counter[int] = collections.Counter()
-        """Requests to a servo that had vanished, by servo id."""
-        self._lock = threading.RLock()
-        self._buffer = bytearray()
-        self._rng = random.Random(seed)
-        self._drop: dict[int | None, int] = {}
-        self._corrupt: dict[int | None, int] = {}
-        self._late: dict[int | None, list[float]] = {}
-        self._short: dict[int | None, int] = {}
-        self.drop_rate = 0.0
-        self.corrupt_rate = 0.0
-        self.short_rate = 0.0
-        self._server = PtyServer(self._on_bytes, link=link, name="dynamixel-emulator")
-        self._on_torque = on_torque
-        self._torque = {i: s.torque for i, s in self.servos.items()}
-
-    def servo(self, servo_id: int) -> EmulatedServo:
-        return self.servos[servo_id]
 
     def goals(self, servo_id: int, inst: int | None = None) -> list[LoggedWrite]:
         """Goal positions written to one servo, optionally only those a given instruction carried."""
         with self._lock:
             return [g for g in self.goal_log if g.servo_id == servo_id and inst in (None, g.inst)]
 
-    # ------------------------------------------------------------- faults
-    def drop_replies(self, count: int = 1, servo_id: int | None = None) -> None:
-        """Swallow the next ``count`` replies (of one servo, or of any)."""
-        with self._lock:
-            self._drop[servo_id] = self._drop.get(servo_id, 0) + count
-
-    def corrupt_replies(self, count: int = 1, servo_id: int | None = None) -> None:
-        with self._lock:
-            self._corrupt[servo_id] = self._corrupt.get(servo_id, 0) + count
-
-    def delay_replies(self, seconds: float, count: int = 1, servo_id: int | None = None) -> None:
-        """Hold the next ``count`` replies ``seconds`` longer: the host times out and the late
-        reply arrives while it waits for the answer to its next request (a stale reply)."""
-        with self._lock:
-            self._late.setdefault(servo_id, []).extend([seconds] * count)
-
-    def short_replies(self, count: int = 1, servo_id: int | None = None) -> None:
-        """Cut the last data byte off the next ``count`` replies that carry data (CRC kept valid)."""
-        with self._lock:
-            self._short[servo_id] = self._short.get(servo_id, 0) + count
-
-    def hardware_error(self, servo_id: int, fault: str) -> None:
-        with self._lock:
-            self.servos[servo_id].set_error(fault)
-            self._torque_changed(f"hardware error: {fault}")
-
-    def vanish(self, servo_id: int, seconds: float | None = None) -> None:
-        """The servo stops answering (cable pulled); back after ``seconds`` if given."""
-        self.servos[servo_id].alive = False
-        if seconds is not None:
-            self._server.after(seconds, lambda: self.reappear(servo_id))
-
-    def reappear(self, servo_id: int) -> None:
-        servo = self.servos[servo_id]
-        with self._lock:
-            servo.alive = True
-            servo.reboot()  # power came back: RAM state is lost, torque off
-            self._torque_changed("power came back")
-
-    def unplug(self, seconds: float | None = None) -> None:
-        """The USB adapter disappears; with ``seconds`` it comes back under the same link."""
-        self._server.unplug(seconds)
-
-    def replug(self) -> None:
-        self._server.replug()
-
-    def schedule(self, fault: Fault) -> None:
-        """Apply ``fault`` ``fault.at`` seconds from now; a fault this bus cannot have is a
-        ``UserError`` here, not an exception in the timer thread later."""
-        self.check_fault(fault)
-        self._server.after(fault.at, lambda: fault.apply(self))
-
-    def check_fault(self, fault: Fault) -> None:
-        if fault.kind not in SERVO_FAULTS:
-            return
-        servo_id = fault.servo_id
-        if servo_id not in self.servos:
-            ids = ", ".join(map(str, sorted(self.servos))) or "none"
-            raise UserError(f"--fault {fault}: no servo {servo_id} on the emulated bus (ids: {ids})")
-        errors = self.servos[servo_id].table.error_bits.values()
-        if fault.kind != "vanish" and fault.kind not in errors:
-            model = self.servos[servo_id].model.name
-            raise UserError(f"--fault {fault}: a {model} has no {fault.kind} error (it has: {', '.join(errors)})")
-
     # ------------------------------------------------------------- protocol
-    def _on_bytes(self, data: bytes) -> None:
-        arrived = time.perf_counter()
-        with self._lock:
-            self._buffer.extend(data)
-            replies: list[tuple[int, bytes]] = []
-            request_bytes = 0
-            while (packet := dp.parse(self._buffer)) is not None:
-                self.counters["packets"] += 1
-                request_bytes += 10 + len(packet.params)
-                replies.extend(self._handle(packet))
-            self._torque_changed("commanded")
-            out = [(self._delay_us(sid) * 1e-6 + self._lateness(sid), self._mangle(sid, raw)) for sid, raw in replies]
-        due = arrived + self._wire_s(request_bytes)
-        for delay, raw in out:
-            due += delay  # Return_Delay_Time (and an injected lateness): the servo waits before it answers
-            if delay > 0.001:
-                time.sleep(max(0.0, due - time.perf_counter()))
-            if raw is None:
-                continue
-            due += self._wire_s(len(raw))
-            self._wait_until(due)
-            self._server.send(raw)
-            self.counters["replies"] += 1
+    def _parse(self, buffer: bytearray) -> dp.Packet | None:
+        return dp.parse(buffer)
 
-    def _torque_changed(self, why: str) -> None:
-        """Tell ``on_torque`` about every servo whose torque differs from what it last heard."""
-        for servo_id, servo in self.servos.items():
-            on = servo.torque
-            if on != self._torque[servo_id]:
-                self._torque[servo_id] = on
-                if self._on_torque is not None:
-                    self._on_torque(servo_id, on, why)
+    def _corrupted(self, raw: bytes) -> bytes:
+        return raw[:-2] + bytes([raw[-2] ^ 0x5A, raw[-1]])
 
-    def _delay_us(self, servo_id: int) -> float:
-        servo = self.servos.get(servo_id)
-        return 2.0 * servo.get("Return_Delay_Time") if servo is not None else 0.0
-
-    def _lateness(self, servo_id: int) -> float:
-        for key in (servo_id, None):
-            if self._late.get(key):
-                return self._late[key].pop(0)
-        return 0.0
-
-    def _wire_s(self, nbytes: int) -> float:
-        """Time ``nbytes`` take on the emulated wire (10 bits per byte; 0 if not emulated)."""
-        return nbytes * 10.0 / self.baudrate if self.baudrate else 0.0
-
-    def _wait_until(self, due: float) -> None:
-        """Hold a reply until it would have finished on a real bus."""
-        if not self.baudrate:
-            return
-        delay = due - time.perf_counter()
-        if delay > 0:
-            time.sleep(delay)
-
-    def _mangle(self, servo_id: int, raw: bytes) -> bytes | None:
-        for key in (servo_id, None):
-            if self._drop.get(key, 0) > 0:
-                self._drop[key] -= 1
-                self.counters["dropped"] += 1
-                return None
-        if self.drop_rate and self._rng.random() < self.drop_rate:
-            self.counters["dropped"] += 1
-            return None
-        corrupt = self.corrupt_rate and self._rng.random() < self.corrupt_rate
-        for key in (servo_id, None):
-            if not corrupt and self._corrupt.get(key, 0) > 0:
-                self._corrupt[key] -= 1
-                corrupt = True
-        if corrupt:
-            self.counters["corrupted"] += 1
-            return raw[:-2] + bytes([raw[-2] ^ 0x5A, raw[-1]])
-        return self._shorten(servo_id, raw)
-
-    def _shorten(self, servo_id: int, raw: bytes) -> bytes:
+    def _shortened(self, raw: bytes) -> bytes | None:
         body = dp.unstuff(raw[7:-2])  # STATUS, error, data
-        if len(body) <= 2:  # no data to cut
-            return raw
-        short = self.short_rate and self._rng.random() < self.short_rate
-        for key in (servo_id, None):
-            if not short and self._short.get(key, 0) > 0:
-                self._short[key] -= 1
-                short = True
-        if not short:
-            return raw
-        self.counters["shortened"] += 1
-        return dp.status(raw[4], body[1], body[2:-1])
+        return dp.status(raw[4], body[1], body[2:-1]) if len(body) > 2 else None
 
     def _status(self, servo: EmulatedServo, error: int, params: bytes = b"") -> tuple[int, bytes]:
         if servo.hardware_error:

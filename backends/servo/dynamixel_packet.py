@@ -103,6 +103,11 @@ class Packet:
     params: bytes
     crc_ok: bool
 
+    @property
+    def size(self) -> int:
+        """Bytes on the wire (header 4, id, length 2, instruction, params, CRC 2; before stuffing)."""
+        return 10 + len(self.params)
+
 
 def parse(buffer: bytearray) -> Packet | None:
     """Take one packet off the front of ``buffer`` (consumed in place); None if incomplete.

@@ -67,6 +67,13 @@ class ControlTable:
     def decode_errors(self, status: int) -> list[str]:
         return [name for bit, name in sorted(self.error_bits.items()) if status & (1 << bit)]
 
+    def encode(self, value: int, reg: Register) -> list[int]:
+        """``encode`` (the same little-endian words for every family): ``servo_bus`` asks the table."""
+        return encode(value, reg)
+
+    def decode(self, data: bytes | list[int], reg: Register) -> int:
+        return decode(data, reg)
+
 
 def _r(address: int, size: int, **kw: bool) -> Register:
     return Register(address, size, **kw)

@@ -1,7 +1,7 @@
 """Fault schedules for the emulated servo buses: the ``--fault KIND[:ARG][@AT][+FOR]`` grammar.
 
 ``split_fault`` parses the grammar for any emulator (the Maestro's too); ``parse_fault`` checks the
-kinds a Dynamixel bus can have, and ``Fault.apply`` injects one into a ``DynamixelEmulator``.
+kinds a servo bus can have, and ``Fault.apply`` injects one into a ``bus_emulator.BusEmulator``.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from convodrive.plumbing.errors import UserError
 from convodrive.plumbing.text import clip_value
 
 if TYPE_CHECKING:
-    from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator
+    from convodrive.backends.servo.bus_emulator import BusEmulator
 
 SERVO_FAULTS = ("overload", "overheating", "input_voltage", "vanish")
 RATE_FAULTS = ("drop", "corrupt", "short")
@@ -43,7 +43,7 @@ class Fault:
         """The servo a servo fault hits (servo 1 when none is named)."""
         return int(self.arg or 1)
 
-    def apply(self, emu: DynamixelEmulator) -> None:
+    def apply(self, emu: BusEmulator) -> None:
         if self.kind == "drop":
             emu.drop_rate = self.arg if self.arg is not None else 0.05
         elif self.kind == "corrupt":

@@ -3,8 +3,9 @@
 The real ``scservo_sdk`` opens the pty's slave path as its port. Each servo is a
 ``feetech_servo.FeetechServo`` (its whole register table, moving toward its goal); this module is
 the bus: it frames packets (``feetech_packet``), answers PING, READ, WRITE, REG_WRITE/ACTION,
-SYNC_WRITE and SYNC_READ (STS only, as the firmware), ignores a packet whose checksum is wrong (as
-the servos do), and delays each reply by Return_Delay_Time and its time on the wire.
+SYNC_WRITE and SYNC_READ (STS only, as the firmware) and ignores a packet whose checksum is wrong (as
+the servos do). Reply timing (Return_Delay_Time, time on the wire) and fault injection are
+``bus_emulator.BusEmulator``'s, shared with the Dynamixel emulator.
 
 Faults use the Dynamixel emulator's ``--fault`` grammar (``parse_fault``): lost (``drop``), corrupt
 (``corrupt``) and short (``short``) replies, ``overload``/``overheating``/``input_voltage`` on a
@@ -14,35 +15,20 @@ vanishes (``vanish``, back after ``+D`` with its RAM reset) and a port that disa
 
 from __future__ import annotations
 
-import collections
-import dataclasses
-import random
-import threading
 import time
 from collections.abc import Callable, Iterable
 
 from convodrive.backends.servo import feetech_packet as fp
-from convodrive.backends.servo.emulator_faults import SERVO_FAULTS, Fault
-from convodrive.backends.servo.feetech_servo import Clock, FeetechServo
+from convodrive.backends.servo.bus_emulator import BusEmulator, Clock, LoggedWrite
+from convodrive.backends.servo.emulator_faults import Fault
+from convodrive.backends.servo.feetech_servo import FeetechServo
 from convodrive.backends.servo.feetech_table import model as lookup_model
-from convodrive.backends.servo.pty_server import PtyDevice, PtyServer
-from convodrive.plumbing.errors import UserError
 
 
-@dataclasses.dataclass
-class LoggedWrite:
-    """One goal or torque write as the servo got it (emulator clock), before any clamping."""
-
-    time: float
-    servo_id: int
-    value: int
-    inst: int
-    packet: int
-    """Ordinal of the packet that carried it: the goals of one SYNC_WRITE share it."""
-
-
-class FeetechEmulator(PtyDevice):
+class FeetechEmulator(BusEmulator):
     """Servos on one emulated bus. A context manager; ``port`` is the path to open."""
+
+    servos: dict[int, FeetechServo]
 
     def __init__(
         self,
@@ -57,148 +43,30 @@ class FeetechEmulator(PtyDevice):
     ) -> None:
         """``on_torque(servo_id, on, why)`` hears every change of a servo's torque, whoever made it."""
         spec = lookup_model(model)
-        self.clock = clock
-        self.baudrate = baudrate
-        self.servos = {i: FeetechServo(i, spec, clock) for i in ids}
-        self.goal_log: list[LoggedWrite] = []
-        self.torque_log: list[LoggedWrite] = []
-        self.sync_read_times: list[float] = []
-        self.counters = collections.Counter(
-            {k: 0 for k in ("packets", "replies", "dropped", "corrupted", "shortened", "checksum_errors_in")}
+        super().__init__(
+            {i: FeetechServo(i, spec, clock) for i in ids},
+            baudrate=baudrate,
+            link=link,
+            clock=clock,
+            seed=seed,
+            on_torque=on_torque,
+            counters=("checksum_errors_in",),
+            name="feetech-emulator",
         )
-        self.unanswered: collections.Counter[int] = collections.Counter()
-        """Requests to a servo that had vanished, by servo id."""
-        self.drop_rate = self.corrupt_rate = self.short_rate = 0.0
-        self._lock = threading.RLock()
-        self._buffer = bytearray()
-        self._rng = random.Random(seed)
-        self._pending: dict[str, dict[int | None, int]] = {"drop": {}, "corrupt": {}, "short": {}}
-        self._server = PtyServer(self._on_bytes, link=link, name="feetech-emulator")
-        self._on_torque = on_torque
-        self._torque = {i: s.torque for i, s in self.servos.items()}
-
-    def servo(self, servo_id: int) -> FeetechServo:
-        return self.servos[servo_id]
 
     def goals(self, servo_id: int) -> list[LoggedWrite]:
         with self._lock:
             return [g for g in self.goal_log if g.servo_id == servo_id]
 
-    # ------------------------------------------------------------- faults
-    def drop_replies(self, count: int = 1, servo_id: int | None = None) -> None:
-        """Swallow the next ``count`` replies (of one servo, or of any)."""
-        self._queue("drop", count, servo_id)
-
-    def corrupt_replies(self, count: int = 1, servo_id: int | None = None) -> None:
-        self._queue("corrupt", count, servo_id)
-
-    def short_replies(self, count: int = 1, servo_id: int | None = None) -> None:
-        """Cut the last data byte off the next ``count`` replies that carry data (checksum kept valid)."""
-        self._queue("short", count, servo_id)
-
-    def _queue(self, kind: str, count: int, servo_id: int | None) -> None:
-        with self._lock:
-            self._pending[kind][servo_id] = self._pending[kind].get(servo_id, 0) + count
-
-    def hardware_error(self, servo_id: int, fault: str) -> None:
-        with self._lock:
-            self.servos[servo_id].set_error(fault)
-            self._torque_changed(f"fault: {fault}")
-
-    def vanish(self, servo_id: int, seconds: float | None = None) -> None:
-        """The servo stops answering (cable pulled); back after ``seconds`` if given."""
-        self.servos[servo_id].alive = False
-        if seconds is not None:
-            self._server.after(seconds, lambda: self.reappear(servo_id))
-
-    def reappear(self, servo_id: int) -> None:
-        with self._lock:
-            servo = self.servos[servo_id]
-            servo.alive = True
-            servo.power_cycle()
-            self._torque_changed("power came back")
-
-    def unplug(self, seconds: float | None = None) -> None:
-        """The USB adapter disappears; with ``seconds`` it comes back under the same link."""
-        self._server.unplug(seconds)
-
-    def schedule(self, fault: Fault) -> None:
-        """Apply ``fault`` ``fault.at`` seconds from now (checked now, not in the timer thread)."""
-        self.check_fault(fault)
-        self._server.after(fault.at, lambda: fault.apply(self))  # type: ignore[arg-type]
-
-    def check_fault(self, fault: Fault) -> None:
-        if fault.kind not in SERVO_FAULTS:
-            return
-        if fault.servo_id not in self.servos:
-            ids = ", ".join(map(str, sorted(self.servos))) or "none"
-            raise UserError(f"--fault {fault}: no servo {fault.servo_id} on the emulated bus (ids: {ids})")
-        errors = self.servos[fault.servo_id].table.error_bits.values()
-        if fault.kind != "vanish" and fault.kind not in errors:
-            raise UserError(f"--fault {fault}: a Feetech servo has no {fault.kind} fault (it has: {', '.join(errors)})")
-
     # ------------------------------------------------------------- wire
-    def _on_bytes(self, data: bytes) -> None:
-        arrived = time.perf_counter()
-        with self._lock:
-            self._buffer.extend(data)
-            replies: list[tuple[int, bytes]] = []
-            request_bytes = 0
-            while (packet := fp.parse(self._buffer)) is not None:
-                self.counters["packets"] += 1
-                request_bytes += packet.size
-                replies.extend(self._handle(packet))
-            self._torque_changed("commanded")
-            out = [(self._delay_s(sid), self._mangle(sid, raw)) for sid, raw in replies]
-        due = arrived + self._wire_s(request_bytes)
-        for delay, raw in out:
-            due += delay  # Return_Delay_Time: the servo waits before it answers
-            if raw is None:
-                continue
-            due += self._wire_s(len(raw))
-            self._wait_until(due)
-            self._server.send(raw)
-            self.counters["replies"] += 1
+    def _parse(self, buffer: bytearray) -> fp.Packet | None:
+        return fp.parse(buffer)
 
-    def _torque_changed(self, why: str) -> None:
-        for servo_id, servo in self.servos.items():
-            on = servo.torque
-            if on != self._torque[servo_id]:
-                self._torque[servo_id] = on
-                if self._on_torque is not None:
-                    self._on_torque(servo_id, on, why)
+    def _corrupted(self, raw: bytes) -> bytes:
+        return raw[:-1] + bytes([raw[-1] ^ 0x5A])
 
-    def _delay_s(self, servo_id: int) -> float:
-        return 2e-6 * self.servos[servo_id].get("Return_Delay_Time")
-
-    def _wire_s(self, nbytes: int) -> float:
-        """Time ``nbytes`` take on the emulated wire (10 bits per byte; 0 if not emulated)."""
-        return nbytes * 10.0 / self.baudrate if self.baudrate else 0.0
-
-    def _wait_until(self, due: float) -> None:
-        delay = due - time.perf_counter()
-        if self.baudrate and delay > 0:
-            time.sleep(delay)
-
-    def _take(self, kind: str, servo_id: int, rate: float) -> bool:
-        """Whether this reply gets fault ``kind``: one queued for it (or any servo), or by chance."""
-        for key in (servo_id, None):
-            if self._pending[kind].get(key, 0) > 0:
-                self._pending[kind][key] -= 1
-                return True
-        return bool(rate) and self._rng.random() < rate
-
-    def _mangle(self, servo_id: int, raw: bytes) -> bytes | None:
-        if self._take("drop", servo_id, self.drop_rate):
-            self.counters["dropped"] += 1
-            return None
-        if self._take("corrupt", servo_id, self.corrupt_rate):
-            self.counters["corrupted"] += 1
-            return raw[:-1] + bytes([raw[-1] ^ 0x5A])
-        if len(raw) > 6 and self._take("short", servo_id, self.short_rate):
-            self.counters["shortened"] += 1
-            return fp.status(raw[2], raw[4], raw[5:-2])
-        return raw
+    def _shortened(self, raw: bytes) -> bytes | None:
+        return fp.status(raw[2], raw[4], raw[5:-2]) if len(raw) > 6 else None
 
     # ------------------------------------------------------------- protocol
     def _status(self, servo: FeetechServo, params: bytes = b"") -> tuple[int, bytes]:

@@ -8,11 +8,10 @@ import logging
 import time
 from typing import Any
 
-import numpy as np
-
 from convodrive.backends.servo.bus_hooks import BusHooks
 from convodrive.backends.servo.safety import SafetyGuard, Watchdog
 from convodrive.backends.servo.servo_options import ServoOptions
+from convodrive.plumbing.stats import percentiles
 
 log = logging.getLogger(__name__)
 _LOG_REPEAT_S = 5.0
@@ -113,7 +112,7 @@ class ServoReporting(BusHooks):
             "neutral_error_raw": dict(self._neutral_error),
             "torque_off": torque_off,
             "torque_off_per_joint": dict(self._torque_off),
-            "bus_ms": {"write": percentiles(self._write_ms), "health_read": percentiles(self._read_ms)},
+            "bus_ms": {"write": latency_summary(self._write_ms), "health_read": latency_summary(self._read_ms)},
             "bus": self._hw_bus(),
             "clamped_frames": self.guard.clamped if self.guard else 0,
             "servos": self._hw_health(),
@@ -131,12 +130,7 @@ def fault_text(faults: list[str], limit: int = 6) -> str:
     return ", ".join(items) + (f" and {more} more" if more > 0 else "")
 
 
-def percentiles(values: collections.deque[float]) -> dict[str, float | None]:
-    if not values:
-        return {"p50": None, "p99": None, "n": 0}
-    arr = np.fromiter(values, float)
-    return {
-        "p50": round(float(np.percentile(arr, 50)), 3),
-        "p99": round(float(np.percentile(arr, 99)), 3),
-        "n": int(arr.size),
-    }
+def latency_summary(values: collections.deque[float]) -> dict[str, float | None]:
+    """p50 and p99 of a bus's times (ms) and how many there were, for the report."""
+    p = percentiles(values)
+    return {"p50": p["p50"] if p else None, "p99": p["p99"] if p else None, "n": len(values)}

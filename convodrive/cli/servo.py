@@ -1,21 +1,21 @@
-"""``convodrive servo``: Dynamixel bus tools: scan, calibrate, monitor.
+"""``convodrive servo``: servo bus tools (Dynamixel or Feetech, ``--bus``): scan, calibrate, monitor.
 
-``scan`` lists the servos on a port (id, model, firmware). ``calibrate`` switches torque off and
+``scan`` lists the servos on a port (id, model, firmware): a Dynamixel bus by one broadcast ping, a
+Feetech bus (which has none) by pinging each id of ``--ids``. ``calibrate`` switches torque off and
 asks you to move each joint through its whole range; the range seen becomes the joint's
 ``min_tick``/``max_tick`` in the profile, written back atomically with the rest of the file (and
 its comments) untouched; a bundled profile named without a path is written to ./NAME.yaml
 instead. ``monitor`` shows a live health table (position, temperature, voltage, hardware errors,
 lost replies) without switching torque on.
 
-The bus settings are the ``dynamixel`` backend's own options (``DynamixelOptions``): read from the
-profile's ``backends.dynamixel``, overridden by flags made from the same declaration, and the bus
-is built by the backend's own ``make_bus``; nothing here repeats a name, a default or a range.
+The bus settings are the chosen backend's own options (``DynamixelOptions``, ``FeetechOptions``):
+read from the profile's ``backends.<bus>``, overridden by flags made from the same declaration, and
+the bus is built by the backend's own ``new_bus``; nothing here repeats a name, a default or a range.
 """
 
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 import threading
 import time
@@ -23,25 +23,49 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from convodrive.backends.servo.feetech_options import FeetechOptions
 from convodrive.backends.servo.servo_options import DynamixelOptions
+from convodrive.cli.emulate import parse_ids
 from convodrive.cli.options import number_in
+from convodrive.cli.servo_profile import set_joint_limits
 from convodrive.plugins.option_help import add_option_arguments, describe_options, option_arguments
-from convodrive.plugins.options import check_options, merge_options
+from convodrive.plugins.options import check_options, merge_options, parse_options
 from convodrive.plumbing.atomic import write_text_atomic
 from convodrive.plumbing.errors import InputFileError, UserError
-from convodrive.plumbing.safe_yaml import parse_scalar, parse_yaml
+from convodrive.plumbing.safe_yaml import parse_scalar
 
 STANDARD_BAUDRATES = (57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 9_600)
 BUS_OPTIONS = ("port", "baudrate", "retries", "latency_ms")
 """The backend's options that the tools take as flags (``--latency-ms``)."""
-PLUGIN = "backend dynamixel"
+BUSES: dict[str, type[DynamixelOptions] | type[FeetechOptions]] = {
+    "dynamixel": DynamixelOptions,
+    "feetech": FeetechOptions,
+}
+"""The buses the tools speak, each with its backend's options (declared without the SDKs)."""
+
+
+def backend_class(bus: str) -> Any:
+    """The bus's backend class (``motors_for``, ``new_bus``, ``HEALTH_REGISTERS``); imports its SDK."""
+    if bus == "feetech":
+        from convodrive.backends.feetech import FeetechBackend
+
+        return FeetechBackend
+    from convodrive.backends.dynamixel import DynamixelBackend
+
+    return DynamixelBackend
+
+
+def _add_bus_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--bus", choices=sorted(BUSES), default="dynamixel", help="servo family on the port (default dynamixel)"
+    )
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "servo",
-        help="Dynamixel tools: scan, calibrate, monitor",
-        description="Find, calibrate and watch the Dynamixel servos of a head.",
+        help="Dynamixel and Feetech tools: scan, calibrate, monitor",
+        description="Find, calibrate and watch the Dynamixel or Feetech servos of a head.",
     )
     tools = p.add_subparsers(dest="tool", metavar="TOOL", required=True)
     info = {i.name: i for i in describe_options(DynamixelOptions)}
@@ -53,6 +77,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help=f"{info['baudrate'].help} to try (repeatable; {info['baudrate'].kind()}; default 1000000)",
     )
     scan.add_argument("--all-baudrates", action="store_true", help="try every standard baud rate")
+    scan.add_argument("--ids", default="0-252", help="only these ids, e.g. 1-7 or 1,2,5-6 (default 0-252)")
+    add_option_arguments(scan, DynamixelOptions, ("latency_ms",))
+    _add_bus_argument(scan)
     scan.set_defaults(func=run_scan)
     for name, fn, text in (
         ("calibrate", run_calibrate, "record each joint's range into the profile"),
@@ -63,6 +90,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "--config", default="servo_head", help="robot profile: a YAML file or a bundled name (default servo_head)"
         )
         add_option_arguments(t, DynamixelOptions, BUS_OPTIONS)
+        _add_bus_argument(t)
         t.set_defaults(func=fn)
     tools.choices["calibrate"].add_argument("--joint", action="append", help="only these joints (repeatable)")
     tools.choices["calibrate"].add_argument("--output", help="write the calibrated profile here instead")
@@ -73,63 +101,71 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 # ----------------------------------------------------------------------------- scan
-def scan(port: str, baudrates: list[int]) -> list[tuple[int, int, int, int]]:
-    """(baudrate, id, model number, firmware) for every servo that answers a broadcast ping."""
-    from convodrive.backends.servo.dynamixel_bus import DynamixelBus
+def scan(
+    port: str, baudrates: list[int], bus: str = "dynamixel", ids: list[int] | None = None, latency_ms: float = 16.0
+) -> list[tuple[int, int, str, str]]:
+    """(baudrate, id, model, firmware) for every servo among ``ids`` that answers."""
+    from convodrive.backends.servo.dynamixel_table import model_name
 
+    wanted = list(range(253)) if ids is None else ids
+    retries = 0 if bus == "feetech" and len(wanted) > 32 else 2  # a probe of every id: one ping each
     found = []
     for baud in baudrates:
-        bus = DynamixelBus(port, [], baudrate=baud)
-        bus.connect()
+        link = backend_class(bus).Bus(port, [], baudrate=baud, latency_ms=latency_ms, retries=retries)
+        link.connect()
         try:
-            found += [(baud, i, model, fw) for i, (model, fw) in sorted(bus.scan().items())]
+            if bus == "feetech":  # no broadcast ping: each id is asked
+                found += [(baud, i, model, fw) for i, (model, fw) in sorted(link.scan(wanted).items())]
+            else:
+                servos = sorted(link.scan().items())
+                found += [(baud, i, model_name(n), str(fw)) for i, (n, fw) in servos if i in wanted]
         finally:
-            bus.disconnect()
+            link.disconnect()
     return found
 
 
 def run_scan(args: argparse.Namespace) -> int:
-    from convodrive.backends.servo.dynamixel_table import model_name
-
     given = [
-        check_options(DynamixelOptions, {"baudrate": parse_scalar(b)}, plugin="--baudrate")["baudrate"]
+        check_options(BUSES[args.bus], {"baudrate": parse_scalar(b)}, plugin="--baudrate")["baudrate"]
         for b in args.baudrate or []
     ]
+    flags = parse_options(BUSES[args.bus], option_arguments(args, ("latency_ms",)), plugin=f"backend {args.bus}")
     rates = list(STANDARD_BAUDRATES) if args.all_baudrates else (given or [1_000_000])
-    found = scan(args.port, rates)
+    ids = parse_ids(args.ids)
+    found = scan(args.port, rates, args.bus, ids, flags.latency_ms)
     if not found:
         raise UserError(f"{args.port}: no servo answers at {', '.join(map(str, rates))} baud")
     print(f"{'baud':>8}  {'id':>3}  {'model':<12} firmware")
-    for baud, servo_id, number, firmware in found:
-        print(f"{baud:>8}  {servo_id:>3}  {model_name(number):<12} {firmware}")
+    for baud, servo_id, model, firmware in found:
+        print(f"{baud:>8}  {servo_id:>3}  {model:<12} {firmware}")
     return 0
 
 
 # ----------------------------------------------------------------------------- profile access
-def _profile(config: str, flags: dict[str, Any] | None = None) -> tuple[Path, DynamixelOptions]:
-    """The profile's file and its Dynamixel options, with the tools' flags on top."""
+def _profile(config: str, flags: dict[str, Any] | None = None, bus: str = "dynamixel") -> tuple[Path, Any]:
+    """The profile's file and its options for ``bus``, with the tools' flags on top."""
     from convodrive.retargeting.profile import load_profile
 
     profile = load_profile(config)
     path = Path(profile.path)
     options = merge_options(
-        DynamixelOptions, [(str(path), profile.backend_options("dynamixel")), ("", flags)], plugin=PLUGIN
+        BUSES[bus], [(str(path), profile.backend_options(bus)), ("", flags)], plugin=f"backend {bus}"
     )
     if not options.joints:
-        raise InputFileError(path, "backends.dynamixel.joints: no servos configured")
+        raise InputFileError(path, f"backends.{bus}.joints: no servos configured")
     return path, options
 
 
-def _bus(options: DynamixelOptions, names: list[str] | None = None):  # type: ignore[no-untyped-def]
-    from convodrive.backends.dynamixel import bus_motors, make_bus
-
-    motors = bus_motors(options, names)
-    bus = make_bus(options, motors)
-    bus.connect()
-    if not any(bus.ping(m.id) for m in motors):
-        bus.disconnect()
-        raise UserError(f"{bus.port_name}: no servo answers (ids {', '.join(str(m.id) for m in motors)})")
-    return bus
+def _bus(options: Any, bus: str = "dynamixel") -> Any:
+    """The bus of ``options.joints``, connected, with at least one servo answering."""
+    backend = backend_class(bus)
+    motors = backend.motors_for(options)
+    link = backend.new_bus(options, motors)
+    link.connect()
+    if not any(link.ping(m.id) for m in motors):
+        link.disconnect()
+        raise UserError(f"{link.port_name}: no servo answers (ids {', '.join(str(m.id) for m in motors)})")
+    return link
 
 
 # ----------------------------------------------------------------------------- calibrate
@@ -166,22 +202,23 @@ def calibrate(
     output: str | None = None,
     done: Callable[[str], None] | None = None,
     say: Callable[[str], None] = print,
+    bus: str = "dynamixel",
 ) -> dict[str, tuple[int, int]]:
-    """Record each joint's range with torque off and write min/max ticks into the profile.
-    ``flags`` override the profile's bus options (``{"port": ...}``)."""
-    path, options = _profile(config, flags)
+    """Record each joint's range with torque off and write min/max ticks into the profile's
+    ``backends.<bus>`` (one format for both buses). ``flags`` override its bus options (``{"port": ...}``)."""
+    path, options = _profile(config, flags, bus)
     assert options.joints is not None
     names = joints or list(options.joints)
     unknown = sorted(set(names) - set(options.joints))
     if unknown:
-        raise UserError(f"--joint: {', '.join(unknown)} not in backends.dynamixel.joints of {path}")
+        raise UserError(f"--joint: {', '.join(unknown)} not in backends.{bus}.joints of {path}")
     wait = done or (lambda name: input())
-    bus = _bus(options)
+    link = _bus(options, bus)
     limits: dict[str, tuple[int, int]] = {}
     try:
         for name in names:
             say(f"{name}: torque is off. Move it slowly through its whole range, then press Enter.")
-            seen = record_range(bus, name, lambda n=name: wait(n))
+            seen = record_range(link, name, lambda n=name: wait(n))
             if seen is None or seen[1] - seen[0] < 10:
                 say(f"{name}: no movement seen ({seen}); keeping the old limits")
                 continue
@@ -189,85 +226,32 @@ def calibrate(
             say(f"{name}: min_tick {seen[0]}, max_tick {seen[1]}")
     finally:
         for name in options.joints:
-            bus.write("Torque_Enable", name, 0)
-        bus.disconnect()
+            link.write("Torque_Enable", name, 0)
+        link.disconnect()
     if limits:
         bundled = path != Path(config).expanduser()  # a profile name from the package: never edit it in place
         target = Path(output) if output else (Path.cwd() / path.name if bundled else path)
-        text = set_joint_limits(path.read_text(encoding="utf-8"), "dynamixel", limits, path)
+        text = set_joint_limits(path.read_text(encoding="utf-8"), bus, limits, path)
         write_text_atomic(target, text)
         say(f"wrote {len(limits)} joint range(s) to {target}")
     return limits
 
 
-_KEY = re.compile(r"^(\s*)([A-Za-z_][\w-]*)\s*:(.*)$")
-
-
-def set_joint_limits(text: str, backend: str, limits: dict[str, tuple[int, int]], path: Path) -> str:
-    """Rewrite ``min_tick``/``max_tick`` of ``backends.<backend>.joints.<name>`` in place.
-
-    A line-level edit, so comments, order and formatting of the rest of the profile survive
-    (a YAML round trip would drop them). The result is parsed back to check every value landed.
-    """
-    lines = text.splitlines(keepends=True)
-    stack: list[tuple[int, str]] = []
-    spans: dict[str, list[int]] = {}
-    for i, line in enumerate(lines):
-        m = _KEY.match(line)
-        if not m or line.lstrip().startswith("#"):
-            continue
-        indent = len(m.group(1))
-        while stack and stack[-1][0] >= indent:
-            stack.pop()
-        stack.append((indent, m.group(2)))
-        keys = [k for _, k in stack]
-        if keys[:3] == ["backends", backend, "joints"] and len(keys) >= 4:
-            spans.setdefault(keys[3], []).append(i)
-    for name, (lo, hi) in limits.items():
-        if name not in spans:
-            raise InputFileError(path, f"backends.{backend}.joints.{name}: not found")
-        for key, value in (("min_tick", lo), ("max_tick", hi)):
-            pattern = re.compile(rf"(\b{key}\s*:\s*)-?\d+")
-            hit = [i for i in spans[name] if pattern.search(lines[i])]
-            if hit:
-                lines[hit[0]] = pattern.sub(rf"\g<1>{value}", lines[hit[0]], count=1)
-            elif "}" in lines[spans[name][0]]:  # flow mapping on one line: add before the brace
-                head = spans[name][0]
-                brace = lines[head].rfind("}")
-                lines[head] = f"{lines[head][:brace]}, {key}: {value}{lines[head][brace:]}"
-            else:
-                head = spans[name][0]
-                indent = len(lines[head]) - len(lines[head].lstrip()) + 2
-                lines.insert(head + 1, " " * indent + f"{key}: {value}\n")
-                spans = {k: [j + (j > head) for j in v] for k, v in spans.items()}
-    result = "".join(lines)
-    parsed = parse_yaml(result, path)
-    for name, (lo, hi) in limits.items():
-        got = parsed["backends"][backend]["joints"][name]
-        if (got.get("min_tick"), got.get("max_tick")) != (lo, hi):
-            raise InputFileError(path, f"backends.{backend}.joints.{name}: could not update the limits in place")
-    return result
-
-
 def run_calibrate(args: argparse.Namespace) -> int:
     if not sys.stdin.isatty():
         print("note: stdin is not a terminal; each Enter is read from it", file=sys.stderr)
-    calibrate(args.config, option_arguments(args, BUS_OPTIONS), args.joint, args.output)
+    calibrate(args.config, option_arguments(args, BUS_OPTIONS), args.joint, args.output, bus=args.bus)
     return 0
 
 
 # ----------------------------------------------------------------------------- monitor
-def health_table(bus: Any) -> Any:
-    """A rich table of one health read (SYNC_READ plus hardware errors on alert)."""
+def health_table(bus: Any, kind: str = "dynamixel") -> Any:
+    """A rich table of one health read (the backend's health registers, and the servos' faults)."""
     from rich.table import Table
 
-    from convodrive.backends.dynamixel import HEALTH_REGISTERS
-
-    data = bus.sync_read(HEALTH_REGISTERS)
-    for name in bus.take_alerts():
-        status = bus.read("Hardware_Error_Status", name)
-        if status is not None:
-            bus.note_hardware_error(name, status)
+    backend = backend_class(kind)
+    data = bus.sync_read(backend.HEALTH_REGISTERS)
+    bus.take_new_faults()  # the faults land in each servo's health record
     table = Table(title=f"{bus.port_name} at {bus.baudrate} baud")
     for column in ("joint", "id", "status", "position", "temp °C", "volt", "errors", "bad replies", "seen s ago"):
         table.add_column(column, no_wrap=column == "joint")
@@ -281,7 +265,7 @@ def health_table(bus: Any) -> Any:
             f"[{style}]{d['status']}[/]",
             str(regs.get("Present_Position", "-")),
             str(regs.get("Present_Temperature", "-")),
-            f"{regs['Present_Input_Voltage'] / 10:.1f}" if regs else "-",
+            f"{regs[backend.VOLTAGE_REGISTER] / 10:.1f}" if regs else "-",
             ",".join(d["faults"]) or "-",
             str(d["timeouts"] + d["corrupt"]),
             "-" if d["last_seen_s"] is None else f"{d['last_seen_s']:.2f}",
@@ -293,17 +277,17 @@ def run_monitor(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.live import Live
 
-    _, options = _profile(args.config, option_arguments(args, BUS_OPTIONS))
-    bus = _bus(options)
+    _, options = _profile(args.config, option_arguments(args, BUS_OPTIONS), args.bus)
+    bus = _bus(options, args.bus)
     console = Console()
     try:
         if args.once:
-            console.print(health_table(bus))
+            console.print(health_table(bus, args.bus))
             return 0
-        with Live(health_table(bus), console=console, refresh_per_second=max(1.0, args.rate)) as live:
+        with Live(health_table(bus, args.bus), console=console, refresh_per_second=max(1.0, args.rate)) as live:
             while True:
                 time.sleep(1.0 / args.rate)
-                live.update(health_table(bus))
+                live.update(health_table(bus, args.bus))
     except KeyboardInterrupt:
         return 0
     finally:

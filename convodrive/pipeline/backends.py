@@ -5,13 +5,15 @@ canonical motion only. A robot backend drives the profile its ``profile`` option
 run config or ``-B``), else the run config when that is a profile, else its own default profile.
 Its options merge, lowest first: its profile's ``backends.<name>``, the run config's
 ``backends.<name>``, then the caller's (``-B``); each layer is checked against the backend's
-declared options and a mistake names the file it came from.
+declared options and a mistake names the file it came from. Which layer set each option is kept, so
+a mistake the backend finds only at open (a joint its profile lacks) names that file too.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
+import re
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -34,6 +36,18 @@ class PlannedBackend:
     name: str
     backend: Backend
     profile: Any  # RobotProfile or None
+    sources: dict[str, str] = dataclasses.field(default_factory=dict)
+    """Option name to the file whose layer set it ("" for the command line's ``-B``)."""
+
+    def where(self, error: UserError) -> UserError:
+        """``error`` from opening this backend, led by the file that set the option it names
+        (``backends.<name>.<option>...``); as it was when the option came from ``-B`` or a default."""
+        message = str(error)
+        found = re.match(rf"backends\.{re.escape(self.name)}\.(\w+)", message)
+        source = self.sources.get(found.group(1), "") if found else ""
+        if not source or message.startswith(source):
+            return error
+        return InputFileError(source, message)
 
 
 def make_backends(
@@ -68,7 +82,8 @@ def make_backends(
             layers.append((str(profile.path), profile.backend_options(name)))
         layers += [(config.where, config_layer), ("", cli_layer)]
         options = merge_options(cls.Options, layers, plugin=plugin)
-        planned.append(PlannedBackend(name, cls(options), profile))
+        sources = {key: where for where, raw in layers for key in (raw or {})}  # the last layer wins
+        planned.append(PlannedBackend(name, cls(options), profile, sources))
     return planned
 
 
@@ -93,8 +108,8 @@ def open_backends(planned: list[PlannedBackend], session: Session) -> tuple[list
             spec = profile.spec if profile is not None else TargetSpec.empty()
             try:
                 item.backend.open(spec, session)
-            except UserError:
-                raise
+            except UserError as exc:
+                raise item.where(exc) from None
             except Exception as exc:  # hardware or driver fault: this backend only
                 failed[item.name] = error_line(exc)
                 log.error("%s: failed to open (%s); the run goes on without it", item.name, failed[item.name])

@@ -12,6 +12,7 @@ import numpy as np
 
 from convodrive import __version__
 from convodrive.plumbing.atomic import write_text_atomic
+from convodrive.plumbing.stats import percentiles
 from convodrive.scheduler.workers import BackendStats
 
 
@@ -42,17 +43,6 @@ class RunResult:
     retarget_seconds: float = 0.0
 
 
-def _percentiles(values: list[float], scale: float = 1.0) -> dict[str, float] | None:
-    if not values:
-        return None
-    arr = np.asarray(values, dtype=np.float64) * scale
-    return {
-        "p50": round(float(np.percentile(arr, 50)), 3),
-        "p99": round(float(np.percentile(arr, 99)), 3),
-        "max": round(float(arr.max()), 3),
-    }
-
-
 def _rate(frames: int, seconds: float) -> float | None:
     return round(frames / seconds, 2) if seconds > 0 else None
 
@@ -77,7 +67,7 @@ def build_report(
             "last_error": stats.last_error,
             "failed": stats.failed,
             "close_error": stats.close_error,
-            "send_ms": _percentiles(stats.send_seconds, 1000.0),
+            "send_ms": percentiles(stats.send_seconds, 1000.0),
             "dispatch_to_sent_ms": stats.dispatch_to_sent_ms.summary(2),
             "health": result.backend_health.get(stats.name, {}),
             "health_events": stats.health_events,
@@ -106,7 +96,7 @@ def build_report(
         "effective_fps": _rate(
             result.frames, result.clock_seconds if result.mode == "realtime" else result.wall_seconds
         ),
-        "jitter_ms": _percentiles(result.jitter_ms),
+        "jitter_ms": percentiles(result.jitter_ms),
         "late_frames": result.late_frames,
         "clock_priority": result.clock_priority,
         "drift_frames": round(result.drift_frames, 3),

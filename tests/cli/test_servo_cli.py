@@ -19,6 +19,7 @@ import dynamixel_sdk as sdk  # noqa: E402
 import yaml  # noqa: E402
 
 from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator, start_emulated_head  # noqa: E402
+from convodrive.backends.servo.feetech_emulator import FeetechEmulator, start_emulated_feetech  # noqa: E402
 from convodrive.cli.main import main  # noqa: E402
 from convodrive.cli.servo import calibrate, set_joint_limits  # noqa: E402
 from convodrive.retargeting.profile import resolve_profile_path  # noqa: E402
@@ -30,6 +31,32 @@ def test_scan_lists_the_emulated_servos(capsys) -> None:  # type: ignore[no-unty
     out = capsys.readouterr().out.splitlines()
     rows = [line.split() for line in out[1:]]
     assert [(int(r[1]), r[2], int(r[3])) for r in rows] == [(i, "xl330-m288", 52) for i in (1, 2, 7, 30)]
+
+
+def test_feetech_scan_pings_each_id(capsys) -> None:  # type: ignore[no-untyped-def]
+    """A Feetech bus has no broadcast ping: the scan asks the ids one by one (here 0-40, at 1 ms)."""
+    with FeetechEmulator([1, 2, 7, 30], "sts3215") as emu:
+        args = ["servo", "scan", "--bus", "feetech", "--port", emu.port, "--ids", "0-40", "--latency-ms", "1"]
+        assert main(args) == 0
+        packets = emu.counters["packets"]
+    rows = [line.split() for line in capsys.readouterr().out.splitlines()[1:]]
+    assert [(int(r[1]), r[2], r[3]) for r in rows] == [(i, "sts3215", "3.10") for i in (1, 2, 7, 30)]
+    assert packets >= 41 + 4, "every id asked, and each servo found asked its firmware"
+    with FeetechEmulator([], "sts3215") as emu:
+        assert main(["servo", "scan", "--bus", "feetech", "--port", emu.port, "--ids", "1-3"]) == 2
+    assert "no servo answers" in capsys.readouterr().err
+
+
+def test_feetech_monitor_once_shows_health(capsys, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    monkeypatch.setenv("COLUMNS", "200")
+    with start_emulated_feetech() as emu:
+        emu.hardware_error(4, "overheating")
+        emu.vanish(6)
+        assert main(["servo", "monitor", "--bus", "feetech", "--port", emu.port, "--once", "--retries", "0"]) == 0
+    out = capsys.readouterr().out
+    lines = {line.split("│")[1].strip(): line for line in out.splitlines() if line.count("│") > 5}
+    assert "overheating" in lines["jaw"] and "fault" in lines["jaw"]
+    assert "lost" in lines["eye_tilt"] and "ok" in lines["neck_pan"]
 
 
 def test_scan_and_monitor_user_errors(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
@@ -81,6 +108,39 @@ def test_calibrate_writes_ranges_back_and_keeps_the_rest(tmp_path: Path) -> None
     changed = [(a, b) for a, b in zip(before.splitlines(), after.splitlines()) if a != b]
     assert len(changed) == 2 and all("min_tick" in b for _, b in changed)
     assert before.count("#") == after.count("#")
+
+
+def test_feetech_calibrate_writes_the_same_profile_format(tmp_path: Path) -> None:
+    source = resolve_profile_path("servo_head")
+    profile = tmp_path / "head.yaml"
+    shutil.copy(source, profile)
+    before = profile.read_text()
+    sweeps = {"neck_tilt": (1500, 2600)}
+    with start_emulated_feetech() as emu:
+
+        def user_moves(name: str) -> None:
+            servo = emu.servo(2)
+            lo, hi = sweeps[name]
+            for tick in list(range(2048, hi, 150)) + [hi] + list(range(hi, lo, -300)) + [lo]:
+                servo.move_by_hand(tick)
+                time.sleep(0.15 if tick in (lo, hi) else 0.01)
+
+        limits = calibrate(
+            str(profile),
+            {"port": emu.port},
+            joints=["neck_tilt"],
+            done=user_moves,
+            say=lambda text: None,
+            bus="feetech",
+        )
+        torque = [emu.servo(i).torque for i in range(1, 8)]
+    assert limits == sweeps and not any(torque)
+    backends = yaml.safe_load(profile.read_text())["backends"]
+    joint = backends["feetech"]["joints"]["neck_tilt"]
+    assert (joint["min_tick"], joint["max_tick"]) == sweeps["neck_tilt"]
+    assert backends["dynamixel"] == yaml.safe_load(before)["backends"]["dynamixel"], "the other bus is untouched"
+    changed = [b for a, b in zip(before.splitlines(), profile.read_text().splitlines()) if a != b]
+    assert len(changed) == 1 and "velocity: 2400" in changed[0]
 
 
 def test_set_limits_in_block_style_yaml() -> None:

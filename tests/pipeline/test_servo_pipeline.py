@@ -147,3 +147,26 @@ def test_the_summary_names_the_lost_servo(tmp_path: Path) -> None:
     assert "FAILED" in line and "torque off not confirmed for eye_tilt" in line, line
     assert "servo lost (eye_tilt)" in line, line
     assert result.report["hardware_failed"] == {"dynamixel": line[line.index("(") + 1 : -1]}
+
+
+def test_a_profile_borne_option_error_names_the_profile(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Defect 16 (issue 31): a joint the profile's own ``backends.dynamixel.joints`` misspells is
+    found only at open; the one-line error must name the profile file it came from."""
+    from convodrive.cli.main import main
+    from convodrive.retargeting.profile import resolve_profile_path
+
+    text = Path(resolve_profile_path("servo_head")).read_text(encoding="utf-8")
+    assert text.count("      neck_pan:  {id: 1,") == 2  # the dynamixel and the feetech entry
+    profile = tmp_path / "my_head.yaml"
+    profile.write_text(text.replace("      neck_pan:  {id: 1,", "      neck_pann:  {id: 1,", 1), encoding="utf-8")
+    args = ["drive", str(bundled_dialogue()), "--backend", "dynamixel", "--config", str(profile)]
+    code = main([*args, "-B", "dynamixel.port=/dev/null", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert str(profile) in err[0] and "backends.dynamixel.joints: neck_pann not in profile" in err[0], err
+    # Set on the command line instead, the same mistake names no file.
+    code = main(
+        [*args[:-2], "-B", "dynamixel.port=/dev/null", "-B", "dynamixel.joints.nope.id=9", "--out", str(tmp_path / "o")]
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and str(profile) not in err[0], err
