@@ -10,13 +10,10 @@ port is reported: ``convodrive.backends.net.UdpSender``).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
-from typing import Any
 
-from convodrive.backends.base import Backend, Session
-from convodrive.backends.net import UdpSender
+from convodrive.backends.net import UdpBackend
 from convodrive.motion.livelink import UDP_PORT, encode_packet, head_eye_rotations
-from convodrive.motion.targets import TargetFrame, TargetSpec
+from convodrive.motion.targets import TargetFrame
 from convodrive.plugins.options import PluginOptions, option
 
 
@@ -28,25 +25,16 @@ class LivelinkOptions(PluginOptions):
     device_id: str = option("convodrive", help="Device id sent with every packet")
 
 
-class LivelinkBackend(Backend):
+class LivelinkBackend(UdpBackend):
     name = "livelink"
     description = "Face and head as Live Link Face UDP packets (Unreal Engine's Live Link, MetaHumans)"
-    realtime = True
+    unit = "packets"
     Options = LivelinkOptions
     options: LivelinkOptions
 
-    def __init__(self, options: PluginOptions | Mapping[str, Any] | None = None) -> None:
-        super().__init__(options)
-        self._udp: UdpSender | None = None
-
-    def open(self, spec: TargetSpec, session: Session) -> None:
-        super().open(spec, session)
-        self._udp = UdpSender(self.name, self.options.host, self.options.port)
-
-    def send(self, frame: TargetFrame) -> None:
-        assert self._udp is not None
+    def datagram(self, frame: TargetFrame) -> bytes:
         motion = frame.motion
-        packet = encode_packet(
+        return encode_packet(
             self.options.device_id,
             self.options.subject,
             frame.index,
@@ -54,11 +42,3 @@ class LivelinkBackend(Backend):
             head_eye_rotations(motion.pose[None])[0],
             fps=int(round(self.session.fps if self.session else 30)),
         )
-        self._udp.send(packet)
-
-    def close(self) -> None:
-        if self._udp is not None:
-            self._udp.close()
-
-    def report(self) -> dict[str, Any]:
-        return self._udp.report("packets") if self._udp is not None else {}

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import socket
-from typing import Any
+from typing import Any, ClassVar
 
+from convodrive.backends.base import Backend, Session
+from convodrive.motion.targets import TargetFrame, TargetSpec
 from convodrive.plumbing.errors import UserError
 
 
@@ -47,3 +49,31 @@ class UdpSender:
     def report(self, unit: str) -> dict[str, Any]:
         """For the backend's report: where to, and how many datagrams (``unit``) and bytes went."""
         return {"destination": self.destination, unit: self.sent, "bytes": self.bytes}
+
+
+class UdpBackend(Backend):
+    """A backend that sends each frame as one datagram to its options' ``host:port``: a subclass
+    says how a frame becomes bytes (``datagram``) and what its report calls one (``unit``)."""
+
+    unit: ClassVar[str] = "datagrams"
+    realtime = True
+    _udp: UdpSender | None = None
+
+    def datagram(self, frame: TargetFrame) -> bytes:
+        raise NotImplementedError
+
+    def open(self, spec: TargetSpec, session: Session) -> None:
+        super().open(spec, session)
+        options: Any = self.options
+        self._udp = UdpSender(self.name, options.host, options.port)
+
+    def send(self, frame: TargetFrame) -> None:
+        assert self._udp is not None
+        self._udp.send(self.datagram(frame))
+
+    def close(self) -> None:
+        if self._udp is not None:
+            self._udp.close()
+
+    def report(self) -> dict[str, Any]:
+        return self._udp.report(self.unit) if self._udp is not None else {}

@@ -17,12 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from convodrive.backends.base import Backend, Session
-from convodrive.backends.net import UdpSender
+from convodrive.backends.net import UdpBackend
 from convodrive.motion import rotations
 from convodrive.motion.channels import ARKIT_NAMES
 from convodrive.motion.skeleton import JOINT_NAMES
-from convodrive.motion.targets import TargetFrame, TargetSpec
+from convodrive.motion.targets import TargetFrame
 from convodrive.plugins.options import PluginOptions, option
 
 NAME = "{name}"
@@ -53,10 +52,10 @@ class OscOptions(PluginOptions):
             raise ValueError(f"option 'prefix' must start with /, got {self.prefix!r}")
 
 
-class OscBackend(Backend):
+class OscBackend(UdpBackend):
     name = "osc"
     description = "Face channels, joints and voice activity as OSC bundles (Unity, VRChat, TouchDesigner)"
-    realtime = True
+    unit = "bundles"
     requires = ("pythonosc",)
     extra = "live"
     Options = OscOptions
@@ -67,17 +66,8 @@ class OscBackend(Backend):
         o = self.options
         self._face_addresses = [o.face_path.replace(NAME, n) for n in ARKIT_NAMES]
         self._joint_addresses = [o.joint_path.replace(NAME, n) for n in JOINT_NAMES]
-        self._udp: UdpSender | None = None
 
-    def open(self, spec: TargetSpec, session: Session) -> None:
-        super().open(spec, session)
-        self._udp = UdpSender(self.name, self.options.host, self.options.port)
-
-    def send(self, frame: TargetFrame) -> None:
-        assert self._udp is not None
-        self._udp.send(self.bundle(frame))
-
-    def bundle(self, frame: TargetFrame) -> bytes:
+    def datagram(self, frame: TargetFrame) -> bytes:
         """One frame as one OSC bundle (timetag: immediately)."""
         from pythonosc.osc_bundle_builder import IMMEDIATELY, OscBundleBuilder
         from pythonosc.osc_message_builder import OscMessageBuilder
@@ -105,10 +95,3 @@ class OscBackend(Backend):
         add(f"{self.options.prefix}/vad", motion.vad)
         add(f"{self.options.prefix}/state", int(motion.state), "i")
         return bundle.build().dgram
-
-    def close(self) -> None:
-        if self._udp is not None:
-            self._udp.close()
-
-    def report(self) -> dict[str, Any]:
-        return self._udp.report("bundles") if self._udp is not None else {}
