@@ -22,7 +22,8 @@ from convodrive.neural.maskgit import maskgit_sample as numpy_maskgit_sample
 from tests.conftest import REPO, require, run_cli
 from tests.corpora import dyadic_audio
 
-pytestmark = [require("torch"), require("onnxruntime")]
+pytestmark = [require("torch"), require("onnxruntime"), pytest.mark.timeout(900)]
+"""The first test also pays for the session's three runs and their export, unless another test did."""
 
 TINY = ["--preset", "tiny", "--device", "cpu", "--no-progress"]
 
