@@ -5,7 +5,8 @@ recorder (motion .npz, BVH, Live Link CSV), the avatar preview video, the MuJoCo
 and an emulated Dynamixel servo head driven through the real SDK over a pseudo-terminal. A body
 whose extra is not installed is skipped with a note, never an error. With the renderer, it then
 films the dialogue through ``procedural``, ``probtalk`` and ``a2p`` side by side, so a user sees the
-default and the two papers' models at once.
+default and the two papers' models at once. ``--audio`` runs a conversation of the user's own
+instead of the bundled one.
 """
 
 from __future__ import annotations

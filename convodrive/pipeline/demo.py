@@ -1,4 +1,5 @@
-"""The demo's run: the bundled dialogue into every body we ship, the servo head emulated.
+"""The demo's run: the bundled dialogue (or a conversation of the user's) into every body we ship,
+the servo head emulated.
 
 ``convodrive demo`` and the scheduler benchmark's mixed case both run exactly this, so the figures
 the benchmark prints are the demo's.
@@ -64,8 +65,9 @@ def side_by_side(
     resolution: str = "384x384",
     audio: Path | None = None,
 ) -> SideBySide:
-    """The conversation (``audio``, else the bundled dialogue) through each generator (offline, into the recorder), then one video
-    of their motion side by side, captioned, with the dialogue's audio: ``side_by_side.mp4``.
+    """The conversation (``audio``, else the bundled dialogue) through each generator (offline,
+    into the recorder), then one video of their motion side by side, captioned, with the
+    conversation's audio: ``side_by_side.mp4``.
 
     A generator that cannot run here (its model or extra missing) is skipped with its reason, so
     the demo still shows what it can."""
