@@ -35,6 +35,12 @@ def turn_taking_audio(seconds: float, seed: int) -> np.ndarray:
     return out
 
 
+def dyadic_audio(seconds: float, seed: int = 7) -> DyadicAudio:
+    """``turn_taking_audio`` as a generator hears it."""
+    voices = turn_taking_audio(seconds, seed=seed)
+    return DyadicAudio(voices[:, 0], voices[:, 1])
+
+
 def write_tiny_corpus(
     folder: Path, conversations: int = 6, seconds: float = 4.0, takes: int = 2, seed: int = 0
 ) -> Path:

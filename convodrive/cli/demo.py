@@ -5,7 +5,8 @@ recorder (motion .npz, BVH, Live Link CSV), the avatar preview video, the MuJoCo
 and an emulated Dynamixel servo head driven through the real SDK over a pseudo-terminal. A body
 whose extra is not installed is skipped with a note, never an error. With the renderer, it then
 films the dialogue through ``procedural``, ``probtalk`` and ``a2p`` side by side, so a user sees the
-default and the two papers' models at once.
+default and the two papers' models at once. ``--audio`` runs a conversation of the user's own
+instead of the bundled one.
 """
 
 from __future__ import annotations
@@ -35,6 +36,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="DIR",
         help="output folder (default: ./convodrive-demo)",
     )
+    p.add_argument(
+        "--audio",
+        type=Path,
+        metavar="AUDIO",
+        help="a conversation of your own (channel 0 = self, 1 = partner) instead of the bundled dialogue",
+    )
     p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     p.add_argument(
         "--only",
@@ -62,12 +69,12 @@ def run(args: argparse.Namespace) -> int:
             print(f"demo: skipping {name}: {exc}")
     if not backends:
         raise UserError("demo: no backend is available")
-    with demo_request(args.out, backends, args.seed) as request, frame_progress("demo") as progress:
+    with demo_request(args.out, backends, args.seed, args.audio) as request, frame_progress("demo") as progress:
         result = drive(request, on_frame=progress, on_drain=drain_progress(progress, "demo"))
     print_result(result)
     if args.side_by_side and "render" in backends and not result.report.get("interrupted"):
         print(f"demo: filming {', '.join(SIDE_BY_SIDE_GENERATORS)} side by side")
-        films = side_by_side(args.out, seed=args.seed)
+        films = side_by_side(args.out, seed=args.seed, audio=args.audio)
         for name, reason in films.skipped.items():
             print(f"demo: side by side without {name}: {reason}")
         if films.video is not None:

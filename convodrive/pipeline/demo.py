@@ -1,4 +1,5 @@
-"""The demo's run: the bundled dialogue into every body we ship, the servo head emulated.
+"""The demo's run: the bundled dialogue (or a conversation of the user's) into every body we ship,
+the servo head emulated.
 
 ``convodrive demo`` and the scheduler benchmark's mixed case both run exactly this, so the figures
 the benchmark prints are the demo's.
@@ -18,8 +19,11 @@ DEMO_BACKENDS = ("record", "render", "mujoco", "dynamixel")
 
 
 @contextlib.contextmanager
-def demo_request(out_dir: Path, backends: Sequence[str] = DEMO_BACKENDS, seed: int = 0) -> Iterator[DriveRequest]:
-    """The demo's drive request, with an emulated Dynamixel head serving while the context is open."""
+def demo_request(
+    out_dir: Path, backends: Sequence[str] = DEMO_BACKENDS, seed: int = 0, audio: Path | None = None
+) -> Iterator[DriveRequest]:
+    """The demo's drive request (``audio``, else the bundled dialogue), with an emulated Dynamixel
+    head serving while the context is open."""
     from convodrive.samples import bundled_dialogue
 
     with contextlib.ExitStack() as stack:
@@ -32,7 +36,7 @@ def demo_request(out_dir: Path, backends: Sequence[str] = DEMO_BACKENDS, seed: i
             # it), so allow its status packets more time than a USB adapter would need.
             backend_options["dynamixel"] = {"port": port, "latency_ms": 40}
         yield DriveRequest(
-            audio=bundled_dialogue(),
+            audio=audio or bundled_dialogue(),
             generator=DEFAULT_GENERATOR,
             backends=tuple(backends),
             out_dir=out_dir,
@@ -59,9 +63,11 @@ def side_by_side(
     generators: Sequence[str] = SIDE_BY_SIDE_GENERATORS,
     seed: int = 0,
     resolution: str = "384x384",
+    audio: Path | None = None,
 ) -> SideBySide:
-    """The bundled dialogue through each generator (offline, into the recorder), then one video
-    of their motion side by side, captioned, with the dialogue's audio: ``side_by_side.mp4``.
+    """The conversation (``audio``, else the bundled dialogue) through each generator (offline,
+    into the recorder), then one video of their motion side by side, captioned, with the
+    conversation's audio: ``side_by_side.mp4``.
 
     A generator that cannot run here (its model or extra missing) is skipped with its reason, so
     the demo still shows what it can."""
@@ -69,7 +75,7 @@ def side_by_side(
     from convodrive.plumbing.errors import UserError
     from convodrive.samples import bundled_dialogue
 
-    audio = bundled_dialogue()
+    audio = audio or bundled_dialogue()
     work = out_dir / "side_by_side"
     clips: list[Path] = []
     ran: list[str] = []

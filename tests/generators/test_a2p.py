@@ -1,8 +1,8 @@
 """The a2p generator on a model folder of the tiny preset (fresh weights: these are contracts of
 the runtime, which hold whatever the weights): streaming equals offline; K takes in one batch
 equal K single takes; each window continues from its context; the guide carries across windows
-and streams never share it; live mode keeps its look-ahead; memory stays constant on long audio;
-options and mistakes are one line; the shipped weights drive a run that loads no torch."""
+and streams never share it; live mode keeps its look-ahead; options and mistakes are one line;
+the shipped weights drive a run that loads no torch. (Constant memory: test_learned_memory.py.)"""
 
 from __future__ import annotations
 
@@ -10,63 +10,31 @@ import json
 import shutil
 import subprocess
 import sys
-import tracemalloc
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from convodrive.audio.source import AudioChunk, DyadicAudio
 from convodrive.generators.base import take_seed
 from convodrive.motion import representation as rep
 from convodrive.plumbing.errors import InputFileError, UserError
 from tests.conftest import REPO, require, run_cli
-from tests.corpora import turn_taking_audio
+from tests.corpora import dyadic_audio
 
 pytestmark = [require("torch"), require("onnxruntime"), pytest.mark.timeout(900)]
-"""The first test also pays for the model folder: twelve graphs exported, each checked for parity."""
+"""The first test also pays for the session's model folder: twelve graphs exported, each checked for parity."""
 
 from convodrive.generators.a2p.generator import BODY, FACE, A2PGenerator  # noqa: E402
 
 
-def _spec(speakers: list[str]):  # type: ignore[no-untyped-def]
-    from convodrive.audio.logmel import MelSpec
-    from convodrive.training.recipe import DataSpec
-
-    mel = MelSpec()
-    return DataSpec(
-        info={
-            "layout": rep.layout(),
-            "corpus": {"name": "none (tests)", "audio_features": mel.to_dict()},
-            "speakers": speakers,
-        },
-        arrays={
-            "mean": np.zeros(rep.FEATURE_DIM, np.float32),
-            "std": np.ones(rep.FEATURE_DIM, np.float32),
-            "count": np.zeros(rep.FEATURE_DIM, np.int64),  # untrained: no data seen, no channel known constant
-            "audio_mean": np.full(mel.bands, -8.0, np.float32),
-            "audio_std": np.full(mel.bands, 3.0, np.float32),
-        },
-    )
-
-
-@pytest.fixture(scope="module")
-def model(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The tiny preset's distill stage, freshly initialised, exported with parity (60-frame windows)."""
-    from convodrive.training.export import export_untrained
-
-    out = tmp_path_factory.mktemp("a2p") / "model"
-    export_untrained("a2p", _spec(["calm", "lively"]), out, preset="tiny", seed=1)
-    return out
-
-
-def _audio(seconds: float, seed: int = 7) -> DyadicAudio:
-    voices = turn_taking_audio(seconds, seed=seed)
-    return DyadicAudio(voices[:, 0], voices[:, 1])
+@pytest.fixture
+def model(a2p_model: Path) -> Path:
+    """The session's tiny a2p folder (tests/generators/conftest.py)."""
+    return a2p_model
 
 
 def test_stream_equals_generate_and_takes_batch(model: Path) -> None:
-    audio = _audio(5.3)
+    audio = dyadic_audio(5.3)
     gen = A2PGenerator({"model": str(model)})
     assert gen.plan.window == 60 and gen.plan.context == 30
     single = gen.generate(audio, seed=5)[0]
@@ -103,7 +71,7 @@ def test_each_window_continues_from_its_context_and_the_guide_carries_on(model: 
         return out
 
     gen.run_window = spy  # type: ignore[method-assign]
-    clip = gen.generate(_audio(5.3))[0]
+    clip = gen.generate(dyadic_audio(5.3))[0]
     assert len(outputs) == gen.plan.windows_for(159) == 6 and contexts[0] is None
     for i in range(1, len(outputs)):
         np.testing.assert_array_equal(contexts[i], outputs[i - 1][:, 30:60])  # the previous window's last 30
@@ -116,7 +84,7 @@ def test_each_window_continues_from_its_context_and_the_guide_carries_on(model: 
 def test_streams_do_not_share_state(model: Path) -> None:
     """Two streams of one generator interleaved give what each gives alone."""
     gen = A2PGenerator({"model": str(model)})
-    a, b = _audio(4.0, seed=1), _audio(4.0, seed=2)
+    a, b = dyadic_audio(4.0, seed=1), dyadic_audio(4.0, seed=2)
     alone_a = np.stack([f.pose for f in gen.stream(a.chunks(1600), seed=3)])
     alone_b = np.stack([f.pose for f in gen.stream(b.chunks(1600), seed=4)])
     both_a, both_b = [], []
@@ -131,7 +99,7 @@ def test_live_mode_declares_its_lookahead_and_keeps_it(model: Path) -> None:
     gen = A2PGenerator({"model": str(model), "mode": "live"})
     assert gen.plan.window == 60 and gen.plan.hop == 12
     assert gen.lookahead_frames / 30 <= 0.5
-    audio = _audio(4.0)
+    audio = dyadic_audio(4.0)
     received = 0
 
     def chunks():  # type: ignore[no-untyped-def]
@@ -145,28 +113,8 @@ def test_live_mode_declares_its_lookahead_and_keeps_it(model: Path) -> None:
             assert received <= (k + gen.lookahead_frames + 1) / 30 * 16000 + 400
 
 
-def test_memory_stays_constant_on_long_audio(model: Path) -> None:
-    gen = A2PGenerator({"model": str(model)})
-    tone = turn_taking_audio(2.0, seed=1)
-
-    def chunks(seconds: float):  # type: ignore[no-untyped-def]
-        for i in range(int(seconds / 2)):
-            yield AudioChunk(i * len(tone), tone[:, 0], tone[:, 1])
-
-    def peak(seconds: float) -> int:
-        tracemalloc.start()
-        for _ in gen.stream(chunks(seconds)):
-            pass
-        _, top = tracemalloc.get_traced_memory()
-        tracemalloc.stop()
-        return top
-
-    short, long = peak(20), peak(120)
-    assert long < short * 1.3 + 200_000, (short, long)
-
-
 def test_guidance_and_sampler_options_change_the_motion(model: Path) -> None:
-    audio = _audio(2.5)
+    audio = dyadic_audio(2.5)
     base = A2PGenerator({"model": str(model), "sampler": "ddim", "steps": 2}).generate(audio)[0]
     guided = A2PGenerator({"model": str(model), "sampler": "ddim", "steps": 2, "guidance_body": 4.0}).generate(audio)[0]
     assert np.abs(base.pose - guided.pose).max() > 1e-5
@@ -205,7 +153,7 @@ def test_ddim_is_the_default_and_its_face_takes_more_steps_than_its_body(model: 
 
 
 def test_stochastic_ddim_is_another_draw_for_the_same_seed(model: Path) -> None:
-    audio = _audio(2.5)
+    audio = dyadic_audio(2.5)
     options = {"model": str(model), "steps": 3, "face_steps": 3}
     deterministic = A2PGenerator(options).generate(audio, seed=4)[0]
     stochastic = A2PGenerator({**options, "eta": 1.0}).generate(audio, seed=4)[0]
@@ -228,7 +176,7 @@ def test_a_model_may_name_its_own_face_student_steps(model: Path, tmp_path: Path
     assert A2PGenerator({**students, "steps": 2}).report()["face_steps"] == 1
     assert A2PGenerator({**students, "face_steps": 3}).report()["face_steps"] == 3
     assert A2PGenerator({"model": str(own), "steps": 5}).report()["face_steps"] == 50  # the teachers' own (DDIM)
-    audio = _audio(2.5)
+    audio = dyadic_audio(2.5)
     np.testing.assert_array_equal(
         A2PGenerator({**students, "steps": 2}).generate(audio)[0].face,
         A2PGenerator({"model": str(model), "sampler": "distilled", "steps": 2, "face_steps": 1})

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import REPO, require, run_cli
-from tests.corpora import turn_taking_audio
+from tests.corpora import dyadic_audio
 
 pytestmark = [require("torch"), require("onnxruntime"), pytest.mark.build_tools]
 
@@ -79,10 +79,7 @@ def test_stream_equals_generate_for_any_chunking(tiny_model: Path, plugin_site: 
         from convodrive_tiny_plugin.learned import TinyLearnedGenerator
     finally:
         sys.path.remove(str(plugin_site))
-    from convodrive.audio.source import DyadicAudio
-
-    voices = turn_taking_audio(3.3, seed=7)
-    audio = DyadicAudio(voices[:, 0], voices[:, 1])
+    audio = dyadic_audio(3.3)
     gen = TinyLearnedGenerator({"model": str(tiny_model)})
     assert gen.lookahead_frames == 30 - 6 - 1 + 1
     offline = gen.generate(audio, seed=3, num_samples=2)

@@ -8,10 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from convodrive.audio.source import AudioSource
+from convodrive.audio.source import AudioSource, DyadicAudio
 from convodrive.eval.behaviour import behaviour_figures
 from convodrive.eval.segments import load_segments
 from convodrive.generators.probtalk.generator import ProbTalkGenerator
+from convodrive.motion.clip import MotionClip
 from convodrive.motion.skeleton import JOINT_INDEX
 from tests.conftest import REPO
 from tests.seams import seam_changes
@@ -32,9 +33,20 @@ def test_the_shipped_folder_is_verified_small_enough_and_carded() -> None:
         assert needed in card, needed
 
 
-def test_the_shipped_mouth_follows_the_bundled_dialogue() -> None:
-    audio = AudioSource(REPO / "samples" / "dialogue.wav").read_all()
-    clip = ProbTalkGenerator().generate(audio, seed=0)[0]
+@pytest.fixture(scope="module")
+def dialogue() -> DyadicAudio:
+    return AudioSource(REPO / "samples" / "dialogue.wav").read_all()
+
+
+@pytest.fixture(scope="module")
+def take(dialogue: DyadicAudio) -> MotionClip:
+    """The shipped model's take of the bundled dialogue (seed 0, default options), made once for
+    the tests that each look at one side of it."""
+    return ProbTalkGenerator().generate(dialogue, seed=0)[0]
+
+
+def test_the_shipped_mouth_follows_the_bundled_dialogue(dialogue: DyadicAudio, take: MotionClip) -> None:
+    audio, clip = dialogue, take
     figures = behaviour_figures(clip, audio, load_segments(REPO / "samples" / "dialogue.json"))
     lips = figures["lip_sync"]
     assert lips["pearson_jaw_vs_self_envelope"] >= 0.6, lips
@@ -44,31 +56,24 @@ def test_the_shipped_mouth_follows_the_bundled_dialogue() -> None:
     assert 1e-4 < np.median(speed) < 0.05, "radians a frame"
 
 
-def test_the_shipped_model_is_continuous_at_window_seams() -> None:
-    audio = AudioSource(REPO / "samples" / "dialogue.wav").read_all()
-    gen = ProbTalkGenerator()
-    clip = gen.generate(audio, seed=0)[0]
-    seams, inside = seam_changes(clip.pose, gen.plan.hop)
+def test_the_shipped_model_is_continuous_at_window_seams(take: MotionClip) -> None:
+    seams, inside = seam_changes(take.pose, ProbTalkGenerator().plan.hop)
     assert len(seams) >= 4
     assert seams.max() <= inside.max(), (seams, inside.max())
 
 
-def test_the_shipped_model_samples_different_takes_of_one_dialogue() -> None:
+def test_the_shipped_model_samples_different_takes_of_one_dialogue(dialogue: DyadicAudio, take: MotionClip) -> None:
     """The predictor's samples reach the motion: two seeds give two gestures (ProbTalk's Var above
     zero), where a decoder that ignored its codes gave takes 3e-4 rad apart."""
-    audio = AudioSource(REPO / "samples" / "dialogue.wav").read_all()
-    gen = ProbTalkGenerator()
-    first, second = (gen.generate(audio, seed=seed)[0] for seed in (0, 1))
+    first, second = take, ProbTalkGenerator().generate(dialogue, seed=1)[0]
     apart = np.degrees(np.abs(first.pose - second.pose)).mean(axis=0)  # (joints, 3), degrees
     assert apart.max() > 2.0, apart.max()
 
 
-def test_the_chest_moves_as_slowly_as_the_corpus_s() -> None:
+def test_the_chest_moves_as_slowly_as_the_corpus_s(take: MotionClip) -> None:
     """The corpus turns spine3 under a degree a second on average and never about one of its
     axes; the refiner's error on that axis's channels (held constant, so scaled by 1) turned it
     11 degrees a second, a shiver, until decoding pinned channels the corpus never moved."""
-    audio = AudioSource(REPO / "samples" / "dialogue.wav").read_all()
-    clip = ProbTalkGenerator().generate(audio, seed=0)[0]
-    spine3 = clip.pose[:, JOINT_INDEX["spine3"]]
+    spine3 = take.pose[:, JOINT_INDEX["spine3"]]
     speed = np.degrees(np.linalg.norm(np.diff(spine3, axis=0), axis=1)).mean() * 30
     assert speed < 2.0, speed

@@ -1,0 +1,72 @@
+"""The learned generators' tiny model folders, each made once per test run and shared by every test
+that drives one (making them is most of these tests' time: training, and every graph exported
+with its parity checked)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+
+def _untrained_spec(speakers: list[str]):  # type: ignore[no-untyped-def]
+    """What a corpus would tell an export (features, statistics, speakers), for fresh weights."""
+    from convodrive.audio.logmel import MelSpec
+    from convodrive.motion import representation as rep
+    from convodrive.training.recipe import DataSpec
+
+    mel = MelSpec()
+    return DataSpec(
+        info={
+            "layout": rep.layout(),
+            "corpus": {"name": "none (tests)", "audio_features": mel.to_dict()},
+            "speakers": speakers,
+        },
+        arrays={
+            "mean": np.zeros(rep.FEATURE_DIM, np.float32),
+            "std": np.ones(rep.FEATURE_DIM, np.float32),
+            "count": np.zeros(rep.FEATURE_DIM, np.int64),  # untrained: no data seen, no channel known constant
+            "audio_mean": np.full(mel.bands, -8.0, np.float32),
+            "audio_std": np.full(mel.bands, 3.0, np.float32),
+        },
+    )
+
+
+@pytest.fixture(scope="session")
+def a2p_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """a2p's tiny preset, distill stage, freshly initialised (the runtime's contracts hold whatever
+    the weights), exported with parity: twelve graphs, 60-frame windows."""
+    from convodrive.training.export import export_untrained
+
+    out = tmp_path_factory.mktemp("a2p") / "model"
+    export_untrained("a2p", _untrained_spec(["calm", "lively"]), out, preset="tiny", seed=1)
+    return out
+
+
+@pytest.fixture(scope="session")
+def probtalk_stages(tiny_corpus: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """probtalk's three stages trained on ``tiny_corpus`` (tiny preset), each from the previous, in
+    this process, and the last exported with parity (``model``). The CLI's train and export are
+    under test in test_probtalk.py's mistakes and the vq export."""
+    from convodrive.training.export import export_model
+    from convodrive.training.loop import TrainRequest, train
+
+    root = tmp_path_factory.mktemp("probtalk")
+    runs: dict[str, Path] = {}
+    previous: Path | None = None
+    for stage in ("vq", "predictor", "refiner"):
+        runs[stage] = root / stage
+        request = TrainRequest(
+            "probtalk", tiny_corpus, preset="tiny", stage=stage, out=runs[stage], device="cpu", progress=False,
+            init=previous,
+        )  # fmt: skip
+        train(request)
+        previous = runs[stage]
+    runs["model"] = export_model(runs["refiner"], root / "model").folder
+    return runs
+
+
+@pytest.fixture(scope="session")
+def probtalk_model(probtalk_stages: dict[str, Path]) -> Path:
+    return probtalk_stages["model"]
