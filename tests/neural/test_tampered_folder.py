@@ -18,8 +18,8 @@ from tests.conftest import REPO, require, run_cli
 
 pytestmark = [require("onnxruntime")]
 
-from convodrive.generators.a2p import A2PGenerator  # noqa: E402
-from convodrive.generators.probtalk import ProbTalkGenerator  # noqa: E402
+from convodrive.generators.a2p.generator import A2PGenerator  # noqa: E402
+from convodrive.generators.probtalk.generator import ProbTalkGenerator  # noqa: E402
 from convodrive.plumbing.errors import InputFileError  # noqa: E402
 
 SHIPPED = {"probtalk": ProbTalkGenerator, "a2p": A2PGenerator}
