@@ -16,7 +16,7 @@ import dataclasses
 from typing import Any
 
 import numpy as np
-from scipy.signal import butter, fftconvolve, resample_poly, sosfilt, stft, istft
+from scipy.signal import butter, fftconvolve, istft, resample_poly, sosfilt, stft
 
 from convodrive.audio.source import ANALYSIS_RATE
 from convodrive.audio.synth import add_bleed, room_response

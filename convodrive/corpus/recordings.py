@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import soundfile as sf
 
 from convodrive import FPS
 from convodrive.audio.analysis import voice_activity
@@ -99,14 +100,22 @@ def scan_voices(folder: Path) -> list[RecordedSpeaker]:
     source = read_source(folder, "voices")
     speakers = []
     for sub in sorted(p for p in folder.iterdir() if p.is_dir()):
-        files = _audio_files(sub)
-        if files:
-            infos = [AudioSource(f).info for f in files]
-            lengths = tuple(i.frames / i.sample_rate for i in infos)
+        infos = [(f, _info(f)) for f in _audio_files(sub)]
+        infos = [(f, i) for f, i in infos if i.frames > 0]  # packages hold empty prompts: skipped
+        if infos:
+            files = [f for f, _ in infos]
+            lengths = tuple(i.frames / i.samplerate for _, i in infos)
             speakers.append(RecordedSpeaker(f"{source.name}/{sub.name}", source, tuple(files), lengths))
     if not speakers:
         raise InputFileError(folder, "holds no speaker folder with WAV or FLAC utterances")
     return speakers
+
+
+def _info(path: Path) -> Any:
+    try:
+        return sf.info(str(path))
+    except RuntimeError as exc:
+        raise InputFileError(path, f"not readable audio ({exc})") from None
 
 
 def load_utterance(path: Path) -> np.ndarray:
