@@ -73,6 +73,10 @@ if [ "$dev" = 1 ] && [ ! -d tools/node/node_modules/gltf-validator ]; then
         exit 1
     fi
 fi
+# Real recorded voices for the real-voice tests (Debian packages, by name, into a cache outside git).
+if [ "$dev" = 1 ]; then
+    scripts/real_voices.sh >/dev/null || { echo "setup: scripts/real_voices.sh failed (above)" >&2; exit 1; }
+fi
 # Reachy Mini's daemon in a venv of its own: reachy-mini pins onnxruntime 1.27, mujoco 3.3 and
 # websockets < 16, which would downgrade ours; the backend only speaks its WebSocket. About 3 min
 # (PyGObject builds) and 407 MB.

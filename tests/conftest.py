@@ -220,3 +220,19 @@ def tiny_fgd_model(tiny_fgd_run: Path) -> Path:
     from convodrive.training.export import export_model
 
     return export_model(tiny_fgd_run, tiny_fgd_run.parent / "model").folder
+
+
+@pytest.fixture(scope="session")
+def real_dialogue() -> object:
+    """A ~20 s two-voice dialogue of real speakers held out of training (tests/real_voices.py),
+    from Debian packages fetched at setup (scripts/setup.sh --dev) or now. Without them the test
+    is skipped; under CONVODRIVE_TESTS_NEED_ALL=1 it fails."""
+    from tests.real_voices import fetch, real_dialogue
+
+    voices, why = fetch()
+    if voices is None:
+        message = f"needs the real-voice packages: {why} (scripts/real_voices.sh, run by scripts/setup.sh --dev)"
+        if NEED_ALL:
+            pytest.fail(message)
+        pytest.skip(message)
+    return real_dialogue(voices)

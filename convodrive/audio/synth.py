@@ -103,7 +103,12 @@ def speak(text: str, voice: str = "en-us", rate: int = 165, pitch: int = 50, sam
     if rate_in != sample_rate:
         ratio = Fraction(sample_rate, rate_in)
         audio = resample_poly(audio, ratio.numerator, ratio.denominator).astype(np.float32)
-    loud = np.flatnonzero(np.abs(audio) > 0.02 * max(float(np.abs(audio).max()), 1e-9))
+    return trim_silence(audio)
+
+
+def trim_silence(audio: np.ndarray) -> np.ndarray:
+    """``audio`` without its leading and trailing stretch below 2 % of its peak."""
+    loud = np.flatnonzero(np.abs(audio) > 0.02 * max(float(np.abs(audio).max(initial=0.0)), 1e-9))
     return audio[loud[0] : loud[-1] + 1] if len(loud) else audio[:0]
 
 

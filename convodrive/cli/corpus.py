@@ -1,6 +1,6 @@
 """``convodrive corpus``: make a training corpus, import one, or check one.
 
-convodrive corpus make --hours H --out DIR [--seed N] [--jobs N]
+convodrive corpus make --hours H --out DIR [--seed N] [--jobs N] [--voices DIR [--voice-hours H]] [--conversations DIR]
 convodrive corpus import KIND SRC --out DIR [--seed N] [--mano FILE]
 convodrive corpus info DIR
 """
@@ -8,15 +8,21 @@ convodrive corpus info DIR
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from collections import Counter
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from convodrive.cli.options import int_in, number_in
 from convodrive.cli.progress import frame_progress
 from convodrive.corpus.importers import KINDS as IMPORT_KINDS
 from convodrive.corpus.manifest import SPLITS
 from convodrive.corpus.reader import Corpus
+from convodrive.plumbing.errors import UserError
+
+if TYPE_CHECKING:
+    from convodrive.corpus.maker import Recorded
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -27,12 +33,38 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sub.required = True
     make = sub.add_parser(
         "make",
-        help="make a synthetic training corpus (espeak-ng conversations, procedural motion)",
+        help="make a training corpus (espeak-ng conversations and your recordings, procedural motion)",
         description="Make HOURS of dyadic espeak-ng conversations with K takes of procedural motion each "
-        "(several languages, voices and speaker styles), in parallel, into a new folder DIR.",
+        "(several languages, voices and speaker styles), in parallel, into a new folder DIR. Recorded speech "
+        "joins them: --voices pairs single-voice recordings (a sub-folder of WAV/FLAC utterances per speaker) "
+        "into dialogues timed like the espeak-ng ones; --conversations takes two-channel recordings (self, "
+        "partner) as they are, turns from NAME.json/NAME.txt segments beside each or from voice activity. "
+        'Each such folder holds a source.json naming its licence: {"licence": "...", "language": "en"}.',
     )
     make.add_argument(
-        "--hours", type=number_in(0.001, 1000.0), required=True, metavar="H", help="hours of conversation"
+        "--hours",
+        type=number_in(0.0, 1000.0),
+        default=None,
+        metavar="H",
+        help="hours of espeak-ng conversation (needed unless --voices or --conversations is given; 0: none)",
+    )
+    make.add_argument(
+        "--voices", type=Path, action="append", default=[], metavar="DIR", help="recorded voices to pair (repeatable)"
+    )
+    make.add_argument(
+        "--voice-hours",
+        type=number_in(0.001, 1000.0),
+        default=None,
+        metavar="H",
+        help="hours of dialogue paired from --voices (default: as long as their utterances together)",
+    )
+    make.add_argument(
+        "--conversations",
+        type=Path,
+        action="append",
+        default=[],
+        metavar="DIR",
+        help="two-channel recorded conversations to take as they are (repeatable)",
     )
     make.add_argument("--out", type=Path, required=True, metavar="DIR", help="new (or empty) corpus folder")
     make.add_argument("--seed", type=int_in(0, 2**31 - 1), default=0, help="the same seed makes the same corpus")
@@ -69,19 +101,43 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     info.set_defaults(func=run_info)
 
 
+def recorded_sources(args: argparse.Namespace) -> Recorded:
+    """The recordings ``--voices`` and ``--conversations`` name, each checked (errors name the folder)."""
+    from convodrive.corpus.maker import Recorded
+    from convodrive.corpus.recordings import scan_conversations, scan_voices, segments_beside
+    from convodrive.eval.segments import load_segments
+
+    speakers = [s for folder in args.voices for s in scan_voices(folder)]
+    conversations = []
+    for folder in args.conversations:
+        for conv in scan_conversations(folder):
+            sidecar = segments_beside(conv.path)
+            if sidecar is not None:
+                seg = load_segments(sidecar)
+                turns = {"self": [list(t) for t in seg.self_speech], "partner": [list(t) for t in seg.partner_speech]}
+                conv = dataclasses.replace(conv, turns=turns)
+            conversations.append(conv)
+    hours = args.voice_hours if args.voice_hours is not None else sum(s.total for s in speakers) / 3600.0
+    return Recorded(speakers, hours if speakers else 0.0, conversations)
+
+
 def run_make(args: argparse.Namespace) -> int:
     from convodrive.corpus.maker import make_corpus
     from convodrive.generators.procedural import ProceduralGenerator
 
+    if args.hours is None and not (args.voices or args.conversations):
+        raise UserError("corpus make: give --hours (espeak-ng conversation), --voices or --conversations")
+    recorded = recorded_sources(args)
     with frame_progress("making corpus (conversations)") as progress:
         report = make_corpus(
-            args.hours,
+            args.hours or 0.0,
             args.out,
             ProceduralGenerator,
             seed=args.seed,
             jobs=args.jobs,
             takes=args.takes,
             progress=progress,
+            recorded=recorded,
         )
     figures = report.to_json()
     print(

@@ -6,12 +6,14 @@ gives the other a long listening stretch. The listener backchannels ("mm-hm", "y
 ends of the holder's sentences, sometimes over them. The floor changes hands after a gap, an
 overlap (the next speaker starts before the last one finishes) or a long silence. Everything is
 drawn from one seeded generator, so a seed gives the same conversation, sample for sample.
+Who speaks is a source of utterances (``Utterances``): espeak-ng here, recorded utterances of
+real speakers in ``corpus.recordings``; the timeline is the same for both.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -90,21 +92,63 @@ class Dialogue:
         }
 
 
+class Utterances(Protocol):
+    """Where a voice's utterances come from: ``pick`` draws what to say (a sentence or a
+    backchannel), ``render`` makes its audio (float32 mono at 16 kHz, silence trimmed; empty: none).
+    Two steps, so the timeline draws its numbers in one order whatever the source."""
+
+    def pick(self, kind: str, rng: np.random.Generator) -> Any: ...
+
+    def render(self, item: Any, rng: np.random.Generator) -> np.ndarray: ...
+
+    @property
+    def amplitude(self) -> float: ...
+
+
+@dataclasses.dataclass(frozen=True)
+class SpokenVoice:
+    """An espeak-ng voice speaking its language's phrase bank."""
+
+    voice: Voice
+
+    @property
+    def amplitude(self) -> float:
+        return self.voice.amplitude
+
+    def pick(self, kind: str, rng: np.random.Generator) -> str:
+        bank = BANKS[self.voice.language]
+        return bank.sentence(rng) if kind == "sentence" else bank.backchannel(rng)
+
+    def render(self, item: str, rng: np.random.Generator) -> np.ndarray:
+        rate = int(round(self.voice.rate * rng.uniform(0.92, 1.08)))
+        return speak(item, self.voice.espeak, rate, self.voice.pitch, ANALYSIS_RATE)
+
+
 def synthesize(
     voices: tuple[Voice, Voice], seconds: float, rng: np.random.Generator, style: TurnTaking | None = None
 ) -> Dialogue:
     """About ``seconds`` of conversation between ``voices`` (self, partner) in their language."""
+    return converse((SpokenVoice(voices[0]), SpokenVoice(voices[1])), seconds, rng, style)
+
+
+def converse(
+    sources: tuple[Utterances, Utterances],
+    seconds: float,
+    rng: np.random.Generator,
+    style: TurnTaking | None = None,
+) -> Dialogue:
+    """About ``seconds`` of conversation between ``sources`` (self, partner): the floor moves as
+    ``style`` says, whoever speaks (espeak-ng voices or recorded utterances)."""
     style = style or TurnTaking()
     placed: list[tuple[int, int, np.ndarray]] = []
     speech: list[Speech] = []
 
-    def say(channel: int, text: str, start: float, kind: str, gain: float = 1.0) -> float:
-        voice = voices[channel]
-        rate = int(round(voice.rate * rng.uniform(0.92, 1.08)))
-        audio = speak(text, voice.espeak, rate, voice.pitch, ANALYSIS_RATE)
+    def say(channel: int, item: Any, start: float, kind: str, gain: float = 1.0) -> float:
+        source = sources[channel]
+        audio = source.render(item, rng)
         if len(audio) == 0:
             return start
-        audio = audio * (gain * voice.amplitude / max(float(np.abs(audio).max()), 1e-9))
+        audio = audio * (gain * source.amplitude / max(float(np.abs(audio).max()), 1e-9))
         start = max(0.0, start)
         placed.append((channel, int(round(start * ANALYSIS_RATE)), audio.astype(np.float32)))
         end = start + len(audio) / ANALYSIS_RATE
@@ -115,16 +159,16 @@ def synthesize(
     holder = int(rng.integers(2))
     while t < seconds:
         listener = 1 - holder
-        bank, other_bank = BANKS[voices[holder].language], BANKS[voices[listener].language]
         if rng.random() < style.monologue:
             count = int(rng.integers(4, 10))
         else:
             count = int(rng.integers(style.sentences_per_turn[0], style.sentences_per_turn[1] + 1))
         end = t
         for _ in range(count):
-            end = say(holder, bank.sentence(rng), t, "sentence")
+            end = say(holder, sources[holder].pick("sentence", rng), t, "sentence")
             if rng.random() < style.backchannel:
-                say(listener, other_bank.backchannel(rng), end - rng.uniform(-0.35, 0.45), "backchannel", gain=0.7)
+                item = sources[listener].pick("backchannel", rng)
+                say(listener, item, end - rng.uniform(-0.35, 0.45), "backchannel", gain=0.7)
             t = end + rng.uniform(*style.pause_in_turn)
             if t >= seconds:
                 break

@@ -15,7 +15,7 @@ import torch
 
 from convodrive.plumbing.errors import UserError
 from convodrive.training import distributed
-from convodrive.training.config import TrainConfig
+from convodrive.training.config import TrainConfig, augmentation
 from convodrive.training.recipe import Batch, Examples
 
 
@@ -25,13 +25,15 @@ class StepBatches(torch.utils.data.Dataset):
 
     def __init__(self, windows: Examples, config: TrainConfig, rank: int, local_batch: int) -> None:
         self.windows, self.config, self.rank, self.local_batch = windows, config, rank, local_batch
+        self.augment = augmentation(config)
 
     def __len__(self) -> int:
         return self.config.steps
 
     def __getitem__(self, step: int) -> Batch:
         indices = batch_indices(self.config.seed, step, len(self.windows), self.config.batch_size)
-        return self.windows.batch(indices[self.rank * self.local_batch : (self.rank + 1) * self.local_batch])
+        mine = indices[self.rank * self.local_batch : (self.rank + 1) * self.local_batch]
+        return self.windows.step_batch(mine, step, self.config.seed, self.augment)
 
 
 def step_batches(

@@ -7,6 +7,7 @@ import difflib
 import math
 from typing import Any, TypeVar
 
+from convodrive.audio.augment import Augment, parse_kinds
 from convodrive.plumbing.errors import UserError
 
 C = TypeVar("C")
@@ -30,6 +31,11 @@ class TrainConfig:
     val_every: int = 500
     checkpoint_every: int = 500
     keep_checkpoints: int = 2
+    augment: str = ""
+    """Audio augmentation of training windows (``audio.augment``): ``all`` or a comma list of
+    speed, pitch, reverb, bleed, level, telephone, noise; empty (the default): none."""
+    augment_p: float = 0.5
+    """The chance each named kind applies to a window."""
 
     def check(self) -> None:
         """Refuse settings no run can use, before anything runs: one ``UserError`` naming the option."""
@@ -47,10 +53,22 @@ class TrainConfig:
             value = getattr(self, name)
             if not low <= value <= MAX_COUNT:
                 raise UserError(f"--set {name}={value}: must be between {low} and {MAX_COUNT}")
+        try:
+            parse_kinds(self.augment)
+        except ValueError as exc:
+            raise UserError(f"--set augment={self.augment}: {exc}") from None
+        if not (math.isfinite(self.augment_p) and 0 <= self.augment_p <= 1):
+            raise UserError(f"--set augment_p={self.augment_p}: must be between 0 and 1")
         for name in ("decay_steps", "keep_checkpoints", "seed"):
             value = getattr(self, name)
             if not 0 <= value <= MAX_COUNT:
                 raise UserError(f"--set {name}={value}: must be between 0 and {MAX_COUNT}")
+
+
+def augmentation(config: TrainConfig) -> Augment | None:
+    """The run's audio augmentation, None when it has none."""
+    kinds = parse_kinds(config.augment)
+    return Augment(kinds, config.augment_p) if kinds else None
 
 
 MAX_COUNT = 10**9

@@ -363,8 +363,16 @@ def _corpus_text(corpus: dict[str, Any]) -> str:
     source = corpus.get("source") or {}
     facts = f"{corpus.get('name', '?')}, {corpus.get('hours', '?')} h, {corpus.get('conversations', '?')} conversations"
     if source.get("kind") == "made":
-        how = f"made by `convodrive corpus make --hours {source.get('hours')} --seed {source.get('seed')} --takes {source.get('takes')}`"
-        return f"{facts}; {how} (teacher: the {source.get('generator', '?')} generator)"
+        recorded = [s for s in source.get("sources", ()) if s.get("name") != "espeak-ng"]
+        flags = "".join(f" --voices {s['name']}" for s in recorded)  # folder names: how the user named them
+        flags += f" --voice-hours {source['voice_hours']}" if recorded and source.get("voice_hours") else ""
+        how = f"made by `convodrive corpus make --hours {source.get('hours')} --seed {source.get('seed')} --takes {source.get('takes')}{flags}`"
+        sources = "; ".join(
+            f"{s['name']} ({s.get('licence', '?')}, {s.get('hours', '?')} h)" for s in source.get("sources", ())
+        )
+        return f"{facts}; {how} (teacher: the {source.get('generator', '?')} generator)" + (
+            f"; sources: {sources}" if sources else ""
+        )
     if source.get("kind"):  # imported: its kind and options, not the folder it came from
         flags = f" --speaker {source['speaker']}" if source.get("speaker") else ""
         flags += " --mano FILE" if source.get("mano") else ""

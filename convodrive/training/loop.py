@@ -172,7 +172,9 @@ def _resume_point(out: Path, identity: dict[str, Any]) -> Checkpoint | None:
         return None
     resume = load_checkpoint(existing[-1])
     before = {k: resume.state.get(k) for k in identity}
-    before["train_config"] = {k: v for k, v in before["train_config"].items() if k not in _MAY_CHANGE_ON_RESUME}
+    # A setting added after the checkpoint was written (augment) ran at its default there.
+    written = {**to_dict(TrainConfig()), **(before["train_config"] or {})}
+    before["train_config"] = {k: v for k, v in written.items() if k not in _MAY_CHANGE_ON_RESUME}
     if json.loads(json.dumps(before)) != json.loads(json.dumps(identity)):
         raise UserError(
             f"{out}: holds a run with other settings ({resume.state['recipe']}, preset {resume.state['preset']}); choose another --out"

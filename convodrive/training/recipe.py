@@ -16,6 +16,7 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 
+from convodrive.audio.augment import Augment
 from convodrive.plumbing.errors import UserError
 from convodrive.training.config import Preset, TrainConfig
 
@@ -53,6 +54,11 @@ class Examples(abc.ABC):
     @abc.abstractmethod
     def batch(self, indices: np.ndarray) -> Batch:
         """CPU tensors of the examples ``indices`` (the loop moves them to the device)."""
+
+    def step_batch(self, indices: np.ndarray, step: int, seed: int, augment: Augment | None) -> Batch:
+        """The batch of training step ``step``: examples that hear audio augment it here (seeded by
+        ``(seed, step, example)``); others are the plain ``batch``."""
+        return self.batch(indices)
 
 
 @dataclasses.dataclass

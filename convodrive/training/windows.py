@@ -14,6 +14,9 @@ import numpy as np
 import torch
 
 from convodrive import FPS
+from convodrive.audio.augment import Augment
+from convodrive.audio.logmel import log_mel
+from convodrive.audio.source import ANALYSIS_RATE
 from convodrive.corpus import Corpus
 from convodrive.motion import representation as rep
 from convodrive.motion.representation import FeatureStats
@@ -48,13 +51,25 @@ class CorpusWindows(Examples):
         return len(self.index)
 
     def batch(self, indices: np.ndarray) -> Batch:
+        return self._batch(indices)
+
+    def step_batch(self, indices: np.ndarray, step: int, seed: int, augment: Augment | None) -> Batch:
+        return self._batch(indices, (step, seed, augment) if augment is not None else None)
+
+    def _batch(self, indices: np.ndarray, augmenting: tuple[int, int, Augment] | None = None) -> Batch:
         motion, mask, audio, speaker = [], [], [], []
-        for ci, take, start in self.index[np.asarray(indices, np.int64)]:
+        for example in np.asarray(indices, np.int64):
+            ci, take, start = self.index[example]
             conv = self.convs[ci]
             w = self.corpus.window(conv.id, int(take), int(start), self.window)
             motion.append(self.stats.normalise(w.features()))
             mask.append(w.feature_mask()[None, :])
-            audio.append(w.mel)
+            if augmenting is None:
+                audio.append(w.mel)
+            else:
+                step, seed, augment = augmenting
+                rng = np.random.default_rng([seed, step, int(example)])
+                audio.append(self.augmented_mel(conv.id, int(start), augment, rng))
             speaker.append(self.corpus.speaker_index(conv.speaker))
         return {
             "motion": torch.from_numpy(np.stack(motion)),
@@ -62,6 +77,15 @@ class CorpusWindows(Examples):
             "audio": torch.from_numpy(np.stack(audio).astype(np.float32)),
             "speaker": torch.tensor(speaker, dtype=torch.long),
         }
+
+    def augmented_mel(self, conversation: str, start: int, augment: Augment, rng: np.random.Generator) -> np.ndarray:
+        """(window, 2, bands) log-mel of a window's raw audio after ``augment``; read with the
+        features' look-ahead, so its frames see what the stored ones saw."""
+        conv = self.corpus.conversation(conversation)
+        extra = int(np.ceil(self.corpus.mel_spec.lookahead_samples / (ANALYSIS_RATE / FPS))) + 1
+        samples = self.corpus.samples(conv.id, start, min(self.window + extra, conv.frames - start))
+        changed, _ = augment(samples, rng)
+        return log_mel(changed, None, self.corpus.mel_spec)[: self.window]
 
 
 def window_data(

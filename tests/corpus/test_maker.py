@@ -121,8 +121,9 @@ def test_make_is_deterministic_whatever_the_jobs(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--hours", "0"], "--hours: expected a number from 0.001 to 1000"),
-        (["--hours", "nan"], "--hours: expected a number from 0.001 to 1000"),
+        (["--hours", "0"], "nothing to make (give --hours above 0, --voices or --conversations)"),
+        ([], "corpus make: give --hours (espeak-ng conversation), --voices or --conversations"),
+        (["--hours", "nan"], "--hours: expected a number from 0 to 1000"),
         (["--hours", "1", "--jobs", "0"], "--jobs: expected a whole number from 1 to 256"),
         (["--hours", "1", "--takes", "99"], "--takes: expected a whole number from 1 to 16"),
     ],

@@ -47,6 +47,23 @@ def test_no_shipped_card_names_a_folder_of_the_machine_that_trained_it(card: Pat
             "made by `convodrive corpus make --hours 2.0 --seed 0 --takes 4` (teacher: the procedural generator)",
         ),
         (
+            {
+                "kind": "made",
+                "hours": 1.0,
+                "seed": 2,
+                "takes": 4,
+                "generator": "procedural",
+                "voice_hours": 0.5,
+                "sources": [
+                    {"name": "espeak-ng", "licence": "no third-party data", "hours": 1.0},
+                    {"name": "librivox", "licence": "Public domain", "hours": 0.5},
+                ],
+            },
+            "made by `convodrive corpus make --hours 1.0 --seed 2 --takes 4 --voices librivox --voice-hours 0.5` "
+            "(teacher: the procedural generator); sources: espeak-ng (no third-party data, 1.0 h); "
+            "librivox (Public domain, 0.5 h)",
+        ),
+        (
             {"kind": "beat2", "from": "/home/someone/BEAT2", "speaker": "wayne", "mano": "/tmp/mano.npz"},
             "imported by `convodrive corpus import beat2 SRC --speaker wayne --mano FILE`",
         ),

@@ -1,0 +1,65 @@
+"""Every shipped generator on a real two-voice dialogue of speakers held out of training
+(tests/real_voices.py), measured with eval.behaviour against the true turns (issue 32, item 5).
+
+Asserted where the figures hold today (clean audio, every generator; -12 dB bleed both ways, the
+procedural one). The learned models' figures with bleed do not hold yet (issue 32, item 3): they
+are printed, not asserted, as is probtalk's head ratio (2.0, too close to the line to assert).
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from convodrive.audio.source import DyadicAudio
+from convodrive.audio.synth import add_bleed
+from convodrive.eval.behaviour import behaviour_figures
+from tests.conftest import require
+
+pytestmark = [require("onnxruntime")]
+
+JAW_R, SHUT_SILENT, SHUT_PARTNER, HEAD_RATIO = 0.7, 0.95, 0.97, 2.0
+
+
+def _generator(name: str):  # noqa: ANN202
+    if name == "procedural":
+        from convodrive.generators.procedural import ProceduralGenerator
+
+        return ProceduralGenerator()
+    if name == "probtalk":
+        from convodrive.generators.probtalk.generator import ProbTalkGenerator
+
+        return ProbTalkGenerator()
+    from convodrive.generators.a2p.generator import A2PGenerator
+
+    return A2PGenerator()
+
+
+def _figures(name: str, audio: DyadicAudio, truth: object) -> dict[str, float]:
+    clip = _generator(name).generate(audio, seed=0)[0]
+    f = behaviour_figures(clip, audio, truth)  # type: ignore[arg-type]
+    return {
+        "jaw_r": f["lip_sync"]["pearson_jaw_vs_self_envelope"],
+        "shut_self_silent": f["lip_sync"]["jaw_closed_when_self_silent"],
+        "shut_only_partner": f["lip_sync"]["jaw_closed_when_only_partner_speaks"],
+        "head_talk_listen": f["head"]["speaking_to_listening_ratio"],
+    }
+
+
+@pytest.mark.parametrize("name", ["procedural", "probtalk", "a2p"])
+def test_every_generator_on_real_voices(name: str, real_dialogue) -> None:  # noqa: ANN001
+    d = real_dialogue
+    assert d.truth.self_speech and d.truth.partner_speech  # both real voices speak
+    clean = _figures(name, d.audio, d.truth)
+    bled = DyadicAudio(*add_bleed(d.audio.self_voice, d.audio.other_voice, -12.0))
+    bleed = _figures(name, bled, d.truth)
+    print(f"real voices, {name}: " + json.dumps({"clean": clean, "bleed_-12dB": bleed}))
+    assert clean["jaw_r"] >= JAW_R
+    assert clean["shut_self_silent"] >= SHUT_SILENT and clean["shut_only_partner"] >= SHUT_PARTNER
+    if name != "probtalk":
+        assert clean["head_talk_listen"] >= HEAD_RATIO
+    if name == "procedural":
+        assert bleed["jaw_r"] >= JAW_R
+        assert bleed["shut_self_silent"] >= SHUT_SILENT and bleed["shut_only_partner"] >= SHUT_PARTNER
+        assert bleed["head_talk_listen"] >= HEAD_RATIO
