@@ -70,7 +70,7 @@ def test_no_shipped_card_names_a_folder_of_the_machine_that_trained_it(card: Pat
     ],
 )
 def test_export_writes_the_command_and_the_corpus_recipe_not_its_folder(source: dict, says: str) -> None:
-    from convodrive.training.export import model_card
+    from convodrive.training.model_card import model_card
 
     corpus = {"path": "/work/corpus2h", "name": "corpus2h", "hours": 2.046, "conversations": 67, "source": source}
     spec = SimpleNamespace(info={"corpus": corpus})
