@@ -46,9 +46,11 @@ def _open(daemon: Daemon, **options: object) -> ReachyMiniBackend:
     return backend
 
 
-def test_unreachable_frames_are_clamped_and_the_head_follows(reachy_mockup: Daemon) -> None:
-    """Frames far outside the limits: the daemon would drop them; clamped, the head goes there."""
-    backend = _open(reachy_mockup)
+@pytest.mark.parametrize("client", ["websocket", pytest.param("sdk", marks=pytest.mark.reachy_sdk)])
+def test_unreachable_frames_are_clamped_and_the_head_follows(reachy_mockup: Daemon, client: str) -> None:
+    """Frames far outside the limits: the daemon would drop them; clamped, the head goes there.
+    Alike through the daemon's protocol spoken directly and through the official SDK client."""
+    backend = _open(reachy_mockup, client=client)
     try:
         wild = SPEC.neutral.copy()
         wild[SPEC.index["head_pitch"]] = 3.0  # far past what the IK reaches
@@ -66,6 +68,7 @@ def test_unreachable_frames_are_clamped_and_the_head_follows(reachy_mockup: Daem
     # A 40 deg jump may leave one read-back in between (the daemon's FK converges over a tick or
     # two), never a run of them: a dropped pose would leave the head at neutral.
     assert report["readbacks_off_command"] <= 2 and report["eased_to_neutral"]
+    assert report["client"] == client and report["follow"]["lag_ms"] is not None, report
     assert report["status"] == "ok", report
 
 
@@ -89,9 +92,11 @@ def test_drive_dialogue_into_the_mockup(reachy_mockup: Daemon, tmp_path: Path) -
     assert report["commands_outside_limits"] == 0 and report["readbacks_off_command"] == 0
     follow = report["follow"]
     assert 0 < follow["lag_ms"] <= 150 and follow["head_rms_deg"] <= 1.5 and follow["position_rms_mm"] <= 1.5
-    live = report["liveliness"]
-    assert live["listening"]["head_deg_s"] > 1.1 * live["silence"]["head_deg_s"]
-    assert live["listening"]["antennas_rad_s"] > 1.5 * live["silence"]["antennas_rad_s"]
+    # Livelier while the partner speaks, as the daemon read the robot back (not only as commanded).
+    for live in (report["liveliness"]["readback"], report["liveliness"]["commanded"]):
+        assert live["listening"]["seconds"] >= 5 and live["silence"]["seconds"] >= 0.5, live
+        assert live["listening"]["head_deg_s"] >= 1.5 * live["silence"]["head_deg_s"], live
+        assert live["listening"]["antennas_rad_s"] >= 1.5 * live["silence"]["antennas_rad_s"], live
     assert report["eased_to_neutral"] and report["neutral_error"]["head_deg"] <= 1.5
 
 
