@@ -91,20 +91,17 @@ class Expression:
         rate = dt / DROOP_RISE_S if droop_goal > self.droop else dt / 0.3  # sinks slowly, recovers fast
         self.droop += max(-rate, min(rate, droop_goal - self.droop))
         body = self.home_yaw + self.attention * (self.partner_yaw - self.home_yaw)
-        head = self._listen(partner, dt)
-        sway = (
-            self.listening_gain
-            * self.listening
-            * LISTEN_ANTENNAS[0]
-            * math.sin(2 * math.pi * LISTEN_ANTENNAS[1] * self._t)
-        )
+        head, sway = self._listen(partner, dt)
         return Part(body, DROOP_RAD * self.droop - PERK_RAD * self.perk + sway, head)
 
-    def _listen(self, partner: bool, dt: float) -> tuple[float, float, float]:
-        """The listening tilt (with the attention) and sway (with the voice): roll, pitch, yaw."""
+    def _listen(self, partner: bool, dt: float) -> tuple[tuple[float, float, float], float]:
+        """The head's roll, pitch and yaw and the antennas' magnitude while listening: the sway
+        follows the partner's voice, the tilt (roll) the attention."""
         self._t += dt
         tau = LISTEN_TAU_S[0] if partner else LISTEN_TAU_S[1]
         self.listening += (float(partner) - self.listening) * (1.0 - math.exp(-dt / tau))
-        gain = math.radians(self.listening_gain)
-        roll, pitch, yaw = (gain * self.listening * a * math.sin(2 * math.pi * f * self._t) for a, f in LISTEN_SWAY)
-        return roll + gain * self.attention * LISTEN_TILT_DEG, pitch, yaw
+        level = self.listening_gain * self.listening
+        roll, pitch, yaw = (math.radians(level * a) * math.sin(2 * math.pi * f * self._t) for a, f in LISTEN_SWAY)
+        tilt = math.radians(self.listening_gain * self.attention * LISTEN_TILT_DEG)
+        antennas = level * LISTEN_ANTENNAS[0] * math.sin(2 * math.pi * LISTEN_ANTENNAS[1] * self._t)
+        return (roll + tilt, pitch, yaw), antennas

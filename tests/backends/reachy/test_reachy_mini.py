@@ -16,7 +16,10 @@ pytestmark = require("reachy")
 
 from convodrive.backends.base import Session  # noqa: E402
 from convodrive.backends.reachy import pose as rp  # noqa: E402
+from convodrive.backends.reachy.expression import Expression, Part  # noqa: E402
 from convodrive.backends.reachy_mini import ReachyMiniBackend  # noqa: E402
+from convodrive.motion.channels import ConversationState  # noqa: E402
+from convodrive.motion.clip import MotionFrame  # noqa: E402
 from convodrive.motion.targets import TargetFrame  # noqa: E402
 from convodrive.retargeting import load_profile  # noqa: E402
 
@@ -38,6 +41,31 @@ def test_limits_clamp_every_axis_and_keep_yaw_relative_to_body() -> None:
     assert list(out[rp.ANTENNAS]) == [-3.0, 3.0]
     head = np.array([0.004, -0.002, 0.01, 0.3, -0.2, 0.5, 0.0, 0.0, 0.0])
     assert np.allclose(rp.head_from_matrix(rp.head_matrix(head)), head[:6])
+
+
+def test_listening_sways_the_head_only_while_the_partner_speaks() -> None:
+    """The sway follows the partner's voice (none in silence, none with listening=0); the tilt
+    follows the attention and is held through the silence after the partner."""
+
+    def frame(state: ConversationState) -> MotionFrame:
+        motion = MotionFrame.neutral()
+        motion.state = state
+        return motion
+
+    def path(expression: Expression, state: ConversationState, seconds: float) -> tuple[float, Part]:
+        parts = [expression.step(frame(state), 1 / 30) for _ in range(int(seconds * 30))]
+        head = np.array([p.head for p in parts])
+        return float(np.abs(np.diff(head, axis=0)).sum()), parts[-1]
+
+    lively, quiet = Expression(0.3), Expression(0.3, listening=0.0)
+    silent_path, _ = path(lively, ConversationState.SILENCE, 3)
+    listening_path, listening = path(lively, ConversationState.LISTENING, 4)
+    after_path, after = path(lively, ConversationState.SILENCE, 3)
+    quiet_path, _ = path(quiet, ConversationState.LISTENING, 4)
+    assert silent_path == 0.0 and quiet_path == 0.0
+    assert math.degrees(listening_path) / 4 > 10.0  # deg/s of sway, summed over the axes
+    assert after_path / 3 < 0.25 * listening_path / 4  # it stops quickly after the partner does
+    assert math.degrees(after.head[0]) == pytest.approx(5.0, abs=0.3)  # the tilt, held by the attention
 
 
 def _open(daemon: Daemon, **options: object) -> ReachyMiniBackend:
