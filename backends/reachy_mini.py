@@ -3,13 +3,14 @@
 The robot profile ``reachy_mini`` maps the canonical neck and head to the head's rotation and a
 few millimetres of position, the torso's twist to the body's yaw and the face to the antennas;
 here the conversation adds its part (``reachy.expression``: the body turns toward the partner while
-they speak, the antennas perk up when they start and droop in a long silence). Every frame becomes
-one ``set_full_target`` on the daemon's SDK WebSocket (``reachy.link``), clamped first to the
-backend's own limits (``reachy.pose``), because the daemon silently drops a pose its IK cannot
-reach. The daemon's state stream gives the health (disconnects, a stale stream, a head that does
-not follow: an unreachable pose or a move of the daemon's own) and the run report's lag and
-tracking error (``reachy.tracking``). On open and on close the backend streams a calm
-minimum-jerk ease itself (the daemon's own ``goto`` would make it ignore every target meanwhile).
+they speak, the head tilts and sways as it listens, the antennas perk up when they start and droop
+in a long silence). Every frame becomes one ``set_full_target`` on the daemon's SDK WebSocket
+(``reachy.link``; ``-B reachy_mini.client=sdk``: through the official client, ``reachy.sdk_link``),
+clamped first to the backend's own limits (``reachy.pose``), because the daemon silently drops a
+pose its IK cannot reach. The daemon's state stream gives the health (disconnects, a stale stream,
+a head that does not follow: an unreachable pose or a move of the daemon's own) and the run
+report's lag and tracking error (``reachy.tracking``). On open and on close the backend streams a
+calm minimum-jerk ease itself (the daemon's own ``goto`` would make it ignore every target meanwhile).
 
 The daemon runs apart (``scripts/reachy_daemon.py``, README "Reachy Mini"): a simulated robot on
 127.0.0.1 by default, the real one with ``-B reachy_mini.host=ADDRESS``. Names are never resolved
@@ -33,7 +34,8 @@ from convodrive.backends.base import Backend, RobotOptions, Session
 from convodrive.backends.reachy import pose as rp
 from convodrive.backends.reachy.expression import Expression
 from convodrive.backends.reachy.link import DaemonLink
-from convodrive.backends.reachy.tracking import follow_figures
+from convodrive.backends.reachy.sdk_link import SdkLink
+from convodrive.backends.reachy.tracking import follow_figures, speeds_by_state
 from convodrive.backends.servo.servo_report import latency_summary
 from convodrive.motion.channels import ConversationState
 from convodrive.motion.targets import TargetFrame, TargetSpec
@@ -51,6 +53,8 @@ NOT_FOLLOWING_FRAMES = 10
 NEUTRAL_TOLERANCE = (math.radians(1.5), 0.0015, 0.05)
 """Head angle (rad), position (m) and body/antenna (rad) from neutral that count as arrived."""
 NEUTRAL_SETTLE_S = 1.0
+READBACK_GUARD_S = 0.1
+"""Read-backs this near a change of conversation state count in neither (``_liveliness``)."""
 EASE = -1
 """The state recorded with an ease's commands (not a frame's conversation state)."""
 JOINTS = {
@@ -71,10 +75,19 @@ JOINTS = {
 class ReachyMiniOptions(RobotOptions):
     host: str = option("127.0.0.1", help="Address of the robot's daemon (an IP address or a name; mDNS is never used)")
     port: int = option(8000, low=1, high=65535, help="Port of the daemon (reachy-mini-daemon --fastapi-port)")
+    client: str = option(
+        "websocket",
+        choices=("websocket", "sdk"),
+        help="websocket: speak the daemon's SDK protocol directly; sdk: through the official client "
+        "(PyPI reachy-mini, installed without its pins: README, 'Reachy Mini')",
+    )
     partner_yaw_deg: float = option(
         20.0, low=-150, high=150, help="Where the partner sits (deg, + to the robot's left): the body turns there"
     )
     home_yaw_deg: float = option(0.0, low=-150, high=150, help="Where the body faces while self speaks (deg)")
+    listening: float = option(
+        1.0, low=0, high=3, help="How much the head tilts and sways while the partner speaks (0: not at all)"
+    )
     ease_s: float = option(1.0, low=0.1, high=10, help="Calm ease to neutral on open and on close (s)")
 
 
@@ -95,7 +108,9 @@ class ReachyMiniBackend(Backend):
         self.limits = rp.Limits()
         self.link: DaemonLink | None = None
         self.expression = Expression(
-            math.radians(self.options.partner_yaw_deg), math.radians(self.options.home_yaw_deg)
+            math.radians(self.options.partner_yaw_deg),
+            math.radians(self.options.home_yaw_deg),
+            self.options.listening,
         )
         self._columns: list[tuple[int, int]] = []
         self._last: np.ndarray | None = None
@@ -116,7 +131,7 @@ class ReachyMiniBackend(Backend):
         self._columns = [(spec.index[n], JOINTS[n]) for n in spec.names if n in JOINTS]
         if not self._columns:
             raise UserError(f"backend reachy_mini: profile {spec.name} has none of the joints {', '.join(JOINTS)}")
-        self.link = DaemonLink(self.options.host, self.options.port)
+        self.link = (SdkLink if self.options.client == "sdk" else DaemonLink)(self.options.host, self.options.port)
         try:
             self.link.open()
         except (OSError, TimeoutError) as exc:
@@ -142,10 +157,11 @@ class ReachyMiniBackend(Backend):
         for col, field in self._columns:
             command[field] = values[col]
         if frame.takes:
-            body, antenna = self.expression.step(frame.motion, dt)
-            command[rp.BODY] += body
-            command[rp.ANT_R] -= antenna  # the right antenna's outward side is negative
-            command[rp.ANT_L] += antenna
+            part = self.expression.step(frame.motion, dt)
+            command[rp.BODY] += part.body
+            command[rp.HEAD_ANGLES] += part.head
+            command[rp.ANT_R] -= part.antennas  # the right antenna's outward side is negative
+            command[rp.ANT_L] += part.antennas
         command[rp.YAW] += command[rp.BODY]  # the daemon's head yaw is in the world frame
         clamped = self.limits.clamp(command)
         if not np.allclose(clamped, command, atol=1e-9):
@@ -315,10 +331,12 @@ class ReachyMiniBackend(Backend):
         sent = [(t, c) for t, c, _ in self._commands]
         run = [t for t, _, s in self._commands if s != EASE]
         span = run[-1] - run[0] if len(run) > 1 else 0.0
+        follow = follow_figures(sent, list(link.readback) if link else [])
         return {
             "status": status,
             **({"reason": ", ".join(sorted(set(events))) or "not eased to neutral"} if status != "ok" else {}),
             "daemon": link.uri if link else None,
+            "client": self.options.client,
             "frames": self._counts["frames"],
             "commands": len(sent),
             "commands_per_s": round((len(run) - 1) / span, 2) if span > 0 else None,  # the frames' only
@@ -330,31 +348,42 @@ class ReachyMiniBackend(Backend):
             "reconnects": link.reconnects if link else 0,
             "readbacks_off_command": self._counts["readbacks_off_command"],
             "set_target_ms": latency_summary(self._send_ms),
-            "follow": follow_figures(sent, list(link.readback) if link else []),
-            "liveliness": self._liveliness(),
+            "follow": follow,
+            "liveliness": self._liveliness(follow.get("lag_ms")),
             "eased_to_neutral": self._eased,
             "neutral_error": self._neutral_error,
             "events": list(self._events),
         }
 
-    def _liveliness(self) -> dict[str, dict[str, float]]:
-        """Mean speed of the commanded head (deg/s, world frame: the body's turn included) and
-        antennas (rad/s) per conversation state, over the run's frames (not the eases)."""
+    def _liveliness(self, lag_ms: float | None) -> dict[str, dict[str, dict[str, float]]]:
+        """How lively the head and antennas are in each conversation state, over the run's frames
+        (not the eases): as commanded (world frame: the body's turn is in the head's yaw), and as
+        the daemon read them back, each read-back counted in the state of the command in force
+        ``lag_ms`` before it arrived."""
+        names = {int(state): state.name.lower() for state in ConversationState}
         run = [c for c in self._commands if c[2] != EASE]
         if len(run) < 2:
             return {}
-        v = np.stack([c[1] for c in run])
-        s = np.array([c[2] for c in run])[1:]
         dt = 1.0 / (self.session.fps if self.session else TICK_HZ)  # frame steps: no wall-clock jitter
-        head = np.degrees(np.abs(np.diff(v[:, rp.HEAD_ANGLES], axis=0))).sum(axis=1) / dt
-        antennas = np.abs(np.diff(v[:, rp.ANTENNAS], axis=0)).sum(axis=1) / dt
-        out = {}
-        for state in ConversationState:
-            mask = s == int(state)
-            if mask.sum() >= 5:
-                out[state.name.lower()] = {
-                    "head_deg_s": round(float(head[mask].mean()), 3),
-                    "antennas_rad_s": round(float(antennas[mask].mean()), 4),
-                    "frames": int(mask.sum()),
-                }
-        return out
+        commanded = speeds_by_state(
+            dt * np.arange(len(run)), np.stack([c[1] for c in run]), np.array([c[2] for c in run]), names
+        )
+        back = list(self.link.readback) if self.link else []
+        if len(back) < 2:
+            return {"commanded": commanded, "readback": {}}
+        sent = np.array([t for t, _, _ in self._commands])
+        sent_states = np.array([s for _, _, s in self._commands])
+        times = np.array([t for t, _ in back])
+
+        def state_at(t: np.ndarray) -> np.ndarray:
+            which = np.searchsorted(sent, t, side="right") - 1
+            return np.where(which >= 0, sent_states[np.maximum(which, 0)], EASE)
+
+        # Near a change of state the read-back still carries the last state's motion (the stream's
+        # jitter blurs the lag): those read-backs are left out.
+        at = times - 1e-3 * (lag_ms or 0.0)
+        states = state_at(at)
+        for shift in (-READBACK_GUARD_S, READBACK_GUARD_S):
+            states = np.where(state_at(at + shift) == states, states, EASE)
+        readback = speeds_by_state(times, np.stack([v for _, v in back]), states, names)
+        return {"commanded": commanded, "readback": readback}

@@ -4,7 +4,7 @@ The daemon always registers ``_reachy-mini._tcp.local.`` with zeroconf, which mu
 interface and has no flag to turn it off; this launcher stubs the registration out, then runs the
 daemon's own ``main`` with the same arguments as ``reachy-mini-daemon``. Run it with the Python of
 the daemon's venv (``.venv-reachy``, made by ``scripts/setup.sh --dev``), and with
-``DO_NOT_TRACK=1`` for no telemetry (``convodrive.backends.reachy.daemon.daemon_env`` sets both up).
+``DO_NOT_TRACK=1`` for no telemetry (``tests/backends/reachy/conftest.py`` sets both up).
 A simulated robot, headless and offline, on 127.0.0.1::
 
     DO_NOT_TRACK=1 .venv-reachy/bin/python scripts/reachy_daemon.py --mockup-sim --headless \\

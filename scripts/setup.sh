@@ -89,4 +89,12 @@ if [ "$dev" = 1 ] && ! .venv-reachy/bin/python -c "import reachy_mini" >/dev/nul
         exit 1
     fi
 fi
+# Reachy Mini's official client in .venv too, for -B reachy_mini.client=sdk and its test:
+# reachy-mini without its dependencies (its pins, onnxruntime==1.27, websockets<16 and
+# huggingface-hub<2, would downgrade ours; its client runs on ours), then the five its client
+# imports that we lack (PyGObject builds from source with the apt packages above). pip check then
+# lists reachy-mini's unmet pins: expected, the daemon's own venv is .venv-reachy.
+if [ "$dev" = 1 ] && ! .venv/bin/python -c "import reachy_mini" >/dev/null 2>&1; then
+    pip_quiet install --no-deps "reachy-mini==1.13.0" asgiref "PyGObject>=3.42.2,<=3.46.0" pycairo zeroconf ifaddr
+fi
 echo "setup: ready (.venv)"

@@ -58,6 +58,11 @@ NEEDS: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
     "transformers": (("transformers",), (), "pip install 'convodrive[frontend]'"),
     "live": (("sounddevice", "websockets", "pythonosc"), (), "pip install 'convodrive[live]'"),
     "reachy": (("websockets",), (), "pip install 'convodrive[reachy]'; the daemon: scripts/setup.sh --dev"),
+    "reachy_sdk": (
+        ("reachy_mini", "gi", "asgiref", "zeroconf"),
+        (),
+        "Reachy Mini's official client, installed without its pins: scripts/setup.sh --dev",
+    ),
     "pulseaudio": (
         ("sounddevice",),
         ("pulseaudio", "pactl", "paplay"),

@@ -1,8 +1,9 @@
 """The link to Reachy Mini's daemon: its SDK WebSocket (``/ws/sdk``), spoken directly.
 
-The official SDK client (``reachy_mini.ReachyMini``) pins onnxruntime 1.27, websockets < 16 and
-PyGObject, which clash with this project's runtime, and its import pulls in the media and app
-layers; its ``set_target`` is one JSON message on this socket. So the backend speaks the same
+The official SDK client (``reachy_mini.ReachyMini``) is optional (``reachy.sdk_link``): its
+package pins onnxruntime 1.27, websockets < 16 and huggingface-hub < 2, which this project's
+runtime is past, and brings PyGObject (built from source) and zeroconf for its client alone; its
+``set_target`` is one JSON message on this socket. So by default the backend speaks the same
 protocol (``reachy_mini/io/protocol.py``): ``set_full_target`` out, one per frame, and the state
 the daemon pushes in (``joint_positions`` and ``head_pose`` at 50 Hz, ``daemon_status`` at 1 Hz).
 
@@ -34,6 +35,7 @@ class DaemonLink:
     """One WebSocket to the daemon, a reader thread, and the newest read-back."""
 
     def __init__(self, host: str, port: int) -> None:
+        self.host, self.port = host, port
         self.uri = f"ws://{host}:{port}/ws/sdk"
         self._ws: Any = None
         self._lock = threading.Lock()
@@ -87,22 +89,21 @@ class DaemonLink:
                     log.debug("reachy_mini: reconnect failed: %s", exc)
                 continue
             try:
-                message = ws.recv()
+                self._receive(ws)
             except Exception as exc:  # noqa: BLE001 - ConnectionClosed, OSError: both a disconnect
                 if self._stop.is_set():
                     return
                 self._lost(str(exc) or type(exc).__name__)
-                continue
-            self._take(message)
+
+    def _receive(self, ws: Any) -> None:
+        """Take one state message; raise when the connection is gone."""
+        self._take(ws.recv())
 
     def _lost(self, detail: str) -> None:
         with self._lock:
             if self._ws is None:
                 return
-            try:
-                self._ws.close()
-            except Exception:  # noqa: BLE001 - already gone
-                pass
+            self._shut(self._ws)
             self._ws = None
             self.connected.clear()
             self.disconnects += 1
@@ -145,21 +146,13 @@ class DaemonLink:
 
     def send_target(self, head: np.ndarray, body_yaw: float, antennas: tuple[float, float]) -> float | None:
         """One ``set_full_target``; returns when it left (``time.monotonic()``), None when unsent."""
-        text = json.dumps(
-            {
-                "type": "set_full_target",
-                "head": [float(v) for v in head.ravel()],
-                "antennas": [float(antennas[0]), float(antennas[1])],
-                "body_yaw": float(body_yaw),
-            }
-        )
         with self._lock:
             ws = self._ws
             if ws is None:
                 self.unsent += 1
                 return None
             try:
-                ws.send(text)
+                self._write(ws, head, body_yaw, antennas)
             except Exception as exc:  # noqa: BLE001 - a broken socket is a disconnect, not a crash
                 self.unsent += 1
                 detail = str(exc) or type(exc).__name__
@@ -170,15 +163,31 @@ class DaemonLink:
         self.sent += 1
         return time.monotonic()
 
+    def _write(self, ws: Any, head: np.ndarray, body_yaw: float, antennas: tuple[float, float]) -> None:
+        ws.send(
+            json.dumps(
+                {
+                    "type": "set_full_target",
+                    "head": [float(v) for v in head.ravel()],
+                    "antennas": [float(antennas[0]), float(antennas[1])],
+                    "body_yaw": float(body_yaw),
+                }
+            )
+        )
+
+    @staticmethod
+    def _shut(ws: Any) -> None:
+        try:
+            ws.close()
+        except Exception:  # noqa: BLE001 - closing a dead socket
+            pass
+
     def close(self) -> None:
         self._stop.set()
         with self._lock:
             ws, self._ws = self._ws, None
         if ws is not None:
-            try:
-                ws.close()
-            except Exception:  # noqa: BLE001 - closing a dead socket
-                pass
+            self._shut(ws)
         if self._thread is not None:
             self._thread.join(timeout=2.0)
         self.connected.clear()

@@ -9,7 +9,7 @@ with the time they left, the read-backs with the time they arrived.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -53,3 +53,29 @@ def follow_figures(
         "body_rms_deg": round(math.degrees(float(np.sqrt(np.mean(error[:, BODY] ** 2)))), 3),
         "antenna_rms_rad": round(float(np.sqrt(np.mean(error[:, ANTENNAS] ** 2))), 4),
     }
+
+
+def speeds_by_state(
+    times: np.ndarray, vectors: np.ndarray, states: np.ndarray, names: Mapping[int, str]
+) -> dict[str, dict[str, float]]:
+    """Mean speed of the head (deg/s, its roll, pitch and yaw summed) and of the antennas (rad/s,
+    both summed) in each conversation state: the path travelled between consecutive samples of
+    the same state over the time they span (jitter in the samples' times cancels out). A state
+    not in ``names`` (an ease) is left out."""
+    if len(times) < 2:
+        return {}
+    dt = np.diff(times)
+    head = np.degrees(np.abs(np.diff(vectors[:, HEAD_ANGLES], axis=0))).sum(axis=1)
+    antennas = np.abs(np.diff(vectors[:, ANTENNAS], axis=0)).sum(axis=1)
+    same = states[1:] == states[:-1]
+    out = {}
+    for code, name in names.items():
+        mask = same & (states[1:] == code)
+        span = float(dt[mask].sum())
+        if mask.sum() >= 5 and span > 0:
+            out[name] = {
+                "head_deg_s": round(float(head[mask].sum()) / span, 3),
+                "antennas_rad_s": round(float(antennas[mask].sum()) / span, 4),
+                "seconds": round(span, 2),
+            }
+    return out

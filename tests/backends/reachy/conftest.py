@@ -21,6 +21,7 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import NEED_ALL
+from tests.pulse import pulse  # noqa: F401 (the fixture, for test_reachy_live.py)
 
 ROOT = Path(__file__).resolve().parents[3]
 LAUNCHER = ROOT / "scripts" / "reachy_daemon.py"

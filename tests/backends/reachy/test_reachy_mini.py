@@ -16,7 +16,10 @@ pytestmark = require("reachy")
 
 from convodrive.backends.base import Session  # noqa: E402
 from convodrive.backends.reachy import pose as rp  # noqa: E402
+from convodrive.backends.reachy.expression import Expression, Part  # noqa: E402
 from convodrive.backends.reachy_mini import ReachyMiniBackend  # noqa: E402
+from convodrive.motion.channels import ConversationState  # noqa: E402
+from convodrive.motion.clip import MotionFrame  # noqa: E402
 from convodrive.motion.targets import TargetFrame  # noqa: E402
 from convodrive.retargeting import load_profile  # noqa: E402
 
@@ -40,15 +43,42 @@ def test_limits_clamp_every_axis_and_keep_yaw_relative_to_body() -> None:
     assert np.allclose(rp.head_from_matrix(rp.head_matrix(head)), head[:6])
 
 
+def test_listening_sways_the_head_only_while_the_partner_speaks() -> None:
+    """The sway follows the partner's voice (none in silence, none with listening=0); the tilt
+    follows the attention and is held through the silence after the partner."""
+
+    def frame(state: ConversationState) -> MotionFrame:
+        motion = MotionFrame.neutral()
+        motion.state = state
+        return motion
+
+    def path(expression: Expression, state: ConversationState, seconds: float) -> tuple[float, Part]:
+        parts = [expression.step(frame(state), 1 / 30) for _ in range(int(seconds * 30))]
+        head = np.array([p.head for p in parts])
+        return float(np.abs(np.diff(head, axis=0)).sum()), parts[-1]
+
+    lively, quiet = Expression(0.3), Expression(0.3, listening=0.0)
+    silent_path, _ = path(lively, ConversationState.SILENCE, 3)
+    listening_path, listening = path(lively, ConversationState.LISTENING, 4)
+    after_path, after = path(lively, ConversationState.SILENCE, 3)
+    quiet_path, _ = path(quiet, ConversationState.LISTENING, 4)
+    assert silent_path == 0.0 and quiet_path == 0.0
+    assert math.degrees(listening_path) / 4 > 10.0  # deg/s of sway, summed over the axes
+    assert after_path / 3 < 0.25 * listening_path / 4  # it stops quickly after the partner does
+    assert math.degrees(after.head[0]) == pytest.approx(5.0, abs=0.3)  # the tilt, held by the attention
+
+
 def _open(daemon: Daemon, **options: object) -> ReachyMiniBackend:
     backend = ReachyMiniBackend({"host": daemon.host, "port": daemon.port, "ease_s": 0.3, **options})
     backend.open(SPEC, Session(out_dir=Path("."), offline=False))
     return backend
 
 
-def test_unreachable_frames_are_clamped_and_the_head_follows(reachy_mockup: Daemon) -> None:
-    """Frames far outside the limits: the daemon would drop them; clamped, the head goes there."""
-    backend = _open(reachy_mockup)
+@pytest.mark.parametrize("client", ["websocket", pytest.param("sdk", marks=pytest.mark.reachy_sdk)])
+def test_unreachable_frames_are_clamped_and_the_head_follows(reachy_mockup: Daemon, client: str) -> None:
+    """Frames far outside the limits: the daemon would drop them; clamped, the head goes there.
+    Alike through the daemon's protocol spoken directly and through the official SDK client."""
+    backend = _open(reachy_mockup, client=client)
     try:
         wild = SPEC.neutral.copy()
         wild[SPEC.index["head_pitch"]] = 3.0  # far past what the IK reaches
@@ -66,6 +96,7 @@ def test_unreachable_frames_are_clamped_and_the_head_follows(reachy_mockup: Daem
     # A 40 deg jump may leave one read-back in between (the daemon's FK converges over a tick or
     # two), never a run of them: a dropped pose would leave the head at neutral.
     assert report["readbacks_off_command"] <= 2 and report["eased_to_neutral"]
+    assert report["client"] == client and report["follow"]["lag_ms"] is not None, report
     assert report["status"] == "ok", report
 
 
@@ -89,9 +120,11 @@ def test_drive_dialogue_into_the_mockup(reachy_mockup: Daemon, tmp_path: Path) -
     assert report["commands_outside_limits"] == 0 and report["readbacks_off_command"] == 0
     follow = report["follow"]
     assert 0 < follow["lag_ms"] <= 150 and follow["head_rms_deg"] <= 1.5 and follow["position_rms_mm"] <= 1.5
-    live = report["liveliness"]
-    assert live["listening"]["head_deg_s"] > 1.1 * live["silence"]["head_deg_s"]
-    assert live["listening"]["antennas_rad_s"] > 1.5 * live["silence"]["antennas_rad_s"]
+    # Livelier while the partner speaks, as the daemon read the robot back (not only as commanded).
+    for live in (report["liveliness"]["readback"], report["liveliness"]["commanded"]):
+        assert live["listening"]["seconds"] >= 5 and live["silence"]["seconds"] >= 0.5, live
+        assert live["listening"]["head_deg_s"] >= 1.5 * live["silence"]["head_deg_s"], live
+        assert live["listening"]["antennas_rad_s"] >= 1.5 * live["silence"]["antennas_rad_s"], live
     assert report["eased_to_neutral"] and report["neutral_error"]["head_deg"] <= 1.5
 
 
