@@ -10,6 +10,8 @@ interrupted 60 % in. The partner is 20 ms blocks of silence. Figures:
 - ``first_chunk_to_dispatch_ms``: a reply's first TTS chunk leaving the framework's TTS -> the
   frame showing its first sample handed to the backends (player: the voice's look-ahead queue
   and the speaker; follower: the play report and ``delay``);
+- ``partner_capture_to_sent_ms``: the partner's audio stamped on arrival -> the frame that first
+  heard it sent to the backend (p50/p99), what ``convodrive live`` reports for a microphone;
 - ``chunk_to_sent_ms``: each stretch of voice fed (player: at the paced write; follower: at its
   play report) -> its frame sent to the backend (p50/p99), from the session's own histogram;
 - ``audio_motion_offset``: player mode, at the speaker: mouth onset at dispatch minus voice onset
@@ -251,6 +253,7 @@ def figures(adapter: str, s: LiveSession, script: Script, backend: str) -> dict:
         "mode": s.request.mode,
         "first_chunk_to_dispatch_ms": [round(x, 1) for x in first],
         "chunk_to_sent_ms": report["latency_ms"]["self_fed_to_sent"].get(backend),
+        "partner_capture_to_sent_ms": report["latency_ms"]["partner_capture_to_sent"].get(backend),
         "interruption_to_mouth_shut_ms": shut,
         "self_lead_ms": report["latency_ms"]["self_lead"],
         "delay_ms": report["latency_ms"]["follower_delay"],
