@@ -26,7 +26,7 @@ from convodrive.agents.wall import to_mono  # noqa: E402
 from convodrive.audio.source import ANALYSIS_RATE  # noqa: E402
 from convodrive.generators.base import Event  # noqa: E402
 from convodrive.pipeline.session import LiveSession  # noqa: E402
-from tests.pipeline.session.helpers import CLOSED, eye_angle, kinds, mouth, voice  # noqa: E402
+from tests.pipeline.session.helpers import CLOSED, eye_angle, kinds, mouth, told_at, voice  # noqa: E402
 
 RATE = ANALYSIS_RATE
 FRAME = 0.02
@@ -202,16 +202,16 @@ def test_player_plays_through_convodrive_audio_output(tmp_path):
     # frames not counted.
     assert abs(finished[0].playback_position - 2.0) < 0.03
     played = live.speaker.samples()
-    heard = np.nonzero(np.abs(played) > 0.05)[0] / RATE
     # LiveKit's playback_started is stamped with when the speaker played the reply's first sample
-    # (the voice's first loud sample is 2 ms in), however late the session's thread noticed it.
-    first_heard = live.speaker.mono_of(heard[0])
+    # (the ring holds exact zeros before it), however late the session's thread noticed it.
+    first_played = live.speaker.mono_of(np.flatnonzero(played)[0] / RATE)
     started = [r for r in reports if r[0] == "started"]
-    assert abs(to_mono(started[0][2].created_at) - first_heard) < 0.01
-    cut = int((live.speaker.position_at(marks["cut"]) + 0.03) * RATE)
+    assert abs(to_mono(started[0][2].created_at) - first_played) < 0.01
+    told = told_at(live, Event.INTERRUPTED)  # the output's clear_buffer, after LiveKit's tasks
+    cut = int((live.speaker.position_at(told) + 0.03) * RATE)
     assert np.abs(played[cut:]).max() < 1e-6  # nothing of the cut reply plays after the cut
     times, jaw = mouth(live)
     assert jaw[(times > marks["cut"] - 0.8) & (times < marks["cut"])].max() > 0.2
-    assert jaw[times > marks["cut"] + 0.1].max() < CLOSED
+    assert jaw[times > told + 0.1].max() < CLOSED
     speaking = [e.at for _, e in live.events if e.kind is Event.SPEAKING_START][0]
     check_thinking(tmp_path, live, speaking, marks["turn_end"])

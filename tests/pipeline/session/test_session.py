@@ -12,7 +12,7 @@ import pytest
 from convodrive.audio.source import ANALYSIS_RATE
 from convodrive.generators.base import Event
 from convodrive.pipeline.session import LiveSession
-from tests.pipeline.session.helpers import CHUNK, CLOSED, feed_silence, mouth, onset, voice, wait_until
+from tests.pipeline.session.helpers import CHUNK, CLOSED, feed_silence, mouth, onset, told_at, voice, wait_until
 
 pytestmark = [pytest.mark.espeak]
 
@@ -93,7 +93,8 @@ def test_player_interruption_drops_unplayed_voice_and_shuts_the_mouth(tmp_path):
     finished = [r for r in reports if r.kind == "finished"]
     assert len(finished) == 1 and finished[0].interrupted
     played = session.speaker.samples()
-    after = int((session.speaker.position_at(cut) + 0.03) * ANALYSIS_RATE)
+    told = told_at(session, Event.INTERRUPTED)
+    after = int((session.speaker.position_at(told) + 0.03) * ANALYSIS_RATE)
     assert np.abs(played[after:]).max() < 1e-6  # nothing of the reply after the cut (one block)
     assert np.abs(played[:after]).max() > 0.3
     # The position told is how much of the reply played: the part of it the speaker played
