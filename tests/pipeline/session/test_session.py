@@ -57,11 +57,14 @@ def test_player_plays_the_voice_and_moves_the_mouth_with_it(tmp_path):
     assert reports[1].position == pytest.approx(len(pcm) / ANALYSIS_RATE, abs=0.05)
     kinds = [e.kind for _, e in session.events]
     assert kinds.index(Event.SPEAKING_START) < kinds.index(Event.SPEAKING_END)
-    # The speaker played the voice: the played samples hold it, once.
+    # The speaker played the voice: the played samples hold it, once, less what came after its
+    # time (a feeder the CPU starved past its lead): the speaker played silence there and counted it.
     played = session.speaker.samples()
     assert np.abs(played).max() > 0.3
     voiced = np.count_nonzero(np.abs(played) > 0.02) / ANALYSIS_RATE
-    assert voiced == pytest.approx(np.count_nonzero(np.abs(pcm / 32768.0) > 0.02) / ANALYSIS_RATE, rel=0.05)
+    expected = np.count_nonzero(np.abs(pcm / 32768.0) > 0.02) / ANALYSIS_RATE
+    late = session.speaker.ring.underrun_samples / ANALYSIS_RATE
+    assert expected * 0.95 - late <= voiced <= expected * 1.05
     # The mouth opens with the played voice, not with the feeding (lead ahead of it).
     first = np.nonzero(np.abs(played) > 0.05)[0][0] / ANALYSIS_RATE
     times, jaw = mouth(session)
