@@ -104,19 +104,23 @@ class SelfVoiceFeeder(threading.Thread):
         finally:
             self.source.close()
 
-    def cut(self, position: int, take_back: Callable[[], object]) -> None:
-        """An interruption or a pause: ``take_back`` takes the voice the source still holds
-        (``QueuedVoice.clear`` or ``hold``), then what is queued from ring ``position`` on is
-        silenced, in the ring and in the analysis (voice the generator must not hear). The
-        feeder's reading and queueing cannot come between: voice it read before the cut is
-        already queued (and blanked here), and what is left over queues only up to ``position``."""
+    def cut(self, where: Callable[[], int], take_back: Callable[[int], object]) -> int:
+        """An interruption or a pause from ring position ``where()`` (the speaker's next block),
+        read once the feeder is out of the way, so a wait here cannot leave it behind the speaker:
+        ``take_back(position)`` takes the voice the source still holds (``QueuedVoice.clear`` or
+        ``hold``), then what is queued from there on is silenced, in the ring and in the analysis
+        (voice the generator must not hear). The feeder's reading and queueing cannot come
+        between: voice it read before the cut is already queued (and blanked here), and what is
+        left over queues only up to the position, which is returned."""
         with self._lock:
-            take_back()
+            position = where()
+            take_back(position)
             self._pending = self._pending[: max(position - self.written, 0)]
             if self.ring is not None:
                 self.ring.blank(position)
             written = -(-self.written * ANALYSIS_RATE // self.rate)  # the analysis of all queued so far
             self.analysis.blank(position * ANALYSIS_RATE // self.rate, written)
+            return position
 
     def _step(self) -> bool:
         """Read and queue once, without waiting; False when nothing came (the caller waits)."""

@@ -91,8 +91,7 @@ class LiveSession(SessionRun):
         with self._lock:
             voice, speaker, feeder = self.voice, self.speaker, self.feeder
             if isinstance(voice, QueuedVoice) and speaker is not None and feeder is not None:
-                cut = speaker.ring.read_pos + speaker.block
-                feeder.cut(cut, voice.clear)
+                cut = feeder.cut(lambda: speaker.ring.read_pos + speaker.block, lambda _: voice.clear())
                 self.tracker.cleared(voice, cut, speaker.rate, at)
             elif self.follower is not None:
                 self.follower.clear()
@@ -107,8 +106,7 @@ class LiveSession(SessionRun):
         with self._lock:
             voice, speaker, feeder = self.voice, self.speaker, self.feeder
             if isinstance(voice, QueuedVoice) and speaker is not None and feeder is not None:
-                cut = speaker.ring.read_pos + speaker.block
-                feeder.cut(cut, lambda: voice.hold(cut))
+                feeder.cut(lambda: speaker.ring.read_pos + speaker.block, voice.hold)
             elif self.follower is not None:
                 self.follower.pause(at)
         self.event(Event.PAUSED, at)

@@ -45,7 +45,7 @@ def test_voice_read_before_a_cut_is_silenced_with_what_was_queued() -> None:
         cut = int(0.02 * RATE)
 
         def interrupt() -> None:
-            feeder.cut(cut, lambda: None)
+            feeder.cut(lambda: cut, lambda _: None)
             source.go.set()  # with the cut done first, the voice arrives after its blank
 
         interrupter = threading.Thread(target=interrupt)
