@@ -36,16 +36,9 @@ from livekit.agents.voice.events import (
     UserStateChangedEvent,
 )
 
+from convodrive.agents.wall import to_mono, to_wall
 from convodrive.generators.base import Event
 from convodrive.pipeline.session import LiveSession, PlaybackReport
-
-
-def _mono(wall: float) -> float:
-    return time.monotonic() - (time.time() - wall)
-
-
-def _wall(mono: float) -> float:
-    return time.time() - (time.monotonic() - mono)
 
 
 class PartnerInput(io.AudioInput):
@@ -123,12 +116,12 @@ class FollowedOutput(io.AudioOutput):
 
     def on_playback_started(self, *, created_at: float) -> None:
         if self._playing:
-            self.live.self_played(self._playing[0], 0.0, at=_mono(created_at))
+            self.live.self_played(self._playing[0], 0.0, at=to_mono(created_at))
         super().on_playback_started(created_at=created_at)
 
     def on_playback_progressed(self, *, started_at: float, offset: float, duration: float) -> None:
         if self._playing:
-            self.live.self_played(self._playing[0], offset, at=_mono(started_at))
+            self.live.self_played(self._playing[0], offset, at=to_mono(started_at))
         super().on_playback_progressed(started_at=started_at, offset=offset, duration=duration)
 
     def on_playback_finished(
@@ -208,10 +201,10 @@ class ConvodriveAudioOutput(io.AudioOutput):
         if report.segment not in self._pending:
             return
         if report.kind == "started":
-            self._pending[report.segment] = _wall(report.at)
+            self._pending[report.segment] = to_wall(report.at)
             self.on_playback_started(created_at=self._pending[report.segment])
             return
-        started = self._pending.pop(report.segment) or _wall(report.at) - report.position
+        started = self._pending.pop(report.segment) or to_wall(report.at) - report.position
         if report.position > 0:
             self.on_playback_progressed(started_at=started, offset=0.0, duration=report.position)
         self.on_playback_finished(playback_position=report.position, interrupted=report.interrupted)
@@ -246,7 +239,7 @@ def _in_chain(sink: io.AudioOutput | None, kind: type) -> bool:
 
 def _subscribe(agent_session: AgentSession, live: LiveSession) -> None:
     def agent_state(ev: AgentStateChangedEvent) -> None:
-        at = _mono(ev.created_at)
+        at = to_mono(ev.created_at)
         if ev.old_state == "thinking":
             live.event(Event.THINKING_END, at)
         if ev.new_state == "thinking":
@@ -257,7 +250,7 @@ def _subscribe(agent_session: AgentSession, live: LiveSession) -> None:
             live.event(Event.SPEAKING_END, at)
 
     def user_state(ev: UserStateChangedEvent) -> None:
-        at = _mono(ev.created_at)
+        at = to_mono(ev.created_at)
         if ev.old_state == "away":
             live.event(Event.USER_BACK, at)
         if ev.new_state == "speaking":
@@ -269,16 +262,16 @@ def _subscribe(agent_session: AgentSession, live: LiveSession) -> None:
 
     def transcribed(ev: UserInputTranscribedEvent) -> None:
         if ev.is_final:
-            live.event(Event.USER_TURN_END, _mono(ev.created_at))
+            live.event(Event.USER_TURN_END, to_mono(ev.created_at))
 
     def tool(ev: ToolExecutionUpdatedEvent) -> None:
         kind = {"tool_call_started": Event.TOOL_START, "tool_call_ended": Event.TOOL_END}.get(ev.update.type)
         if kind is not None:
-            live.event(kind, _mono(ev.created_at), tool=getattr(ev.update, "call_id", None))
+            live.event(kind, to_mono(ev.created_at), tool=getattr(ev.update, "call_id", None))
 
     def false_interruption(ev: AgentFalseInterruptionEvent) -> None:
         if ev.resumed:
-            live.event(Event.RESUMED, _mono(ev.created_at))
+            live.event(Event.RESUMED, to_mono(ev.created_at))
 
     handlers: dict[Any, Any] = {
         "agent_state_changed": agent_state,

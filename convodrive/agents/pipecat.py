@@ -44,6 +44,7 @@ from pipecat.processors.frame_processor import FrameDirection
 from pipecat.transports.base_output import BaseOutputTransport
 from pipecat.transports.base_transport import TransportParams
 
+from convodrive.agents.wall import to_mono
 from convodrive.generators.base import Event
 from convodrive.pipeline.session import LiveSession
 
@@ -62,10 +63,6 @@ FOLLOWER_EVENTS: dict[type, Event] = {
     BotStoppedSpeakingFrame: Event.SPEAKING_END,
 }
 """In player mode the session knows these better (when the speaker plays the samples)."""
-
-
-def _wall_to_mono(wall: float) -> float:
-    return time.monotonic() - (time.time() - wall)
 
 
 class ConvodriveObserver(BaseObserver):
@@ -99,9 +96,9 @@ class ConvodriveObserver(BaseObserver):
         elif isinstance(frame, InterruptionFrame) and not session.player:
             session.clear_self(now)  # player mode: the output transport clears
         elif isinstance(frame, VADUserStartedSpeakingFrame):
-            session.event(Event.USER_SPEECH_START, _wall_to_mono(frame.timestamp - frame.start_secs))
+            session.event(Event.USER_SPEECH_START, to_mono(frame.timestamp - frame.start_secs))
         elif isinstance(frame, VADUserStoppedSpeakingFrame):
-            session.event(Event.USER_SPEECH_STOP, _wall_to_mono(frame.timestamp - frame.stop_secs))
+            session.event(Event.USER_SPEECH_STOP, to_mono(frame.timestamp - frame.stop_secs))
         elif data.direction == FrameDirection.DOWNSTREAM:  # broadcast frames: one copy
             kind = STATE_EVENTS.get(type(frame))
             if kind is None and not session.player:

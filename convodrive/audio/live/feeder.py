@@ -5,6 +5,8 @@ analysis time line the generator reads, so the generator always sees the voice `
 before the speaker plays it: the self voice is delayed by the generator's look-ahead. When the
 source has nothing (an agent between sentences, a stream that stopped mid-sentence) the feeder
 queues silence instead, so the speaker, the clock and the generator go on, and the mouth closes.
+An interruption silences what is queued (``cut``) in one step with the feeder's reading and
+queueing, so voice read just before it can never land after the blank.
 """
 
 from __future__ import annotations
@@ -79,6 +81,9 @@ class SelfVoiceFeeder(threading.Thread):
         """The last thing queued was voice (not silence)."""
         self.events: list[dict[str, Any]] = []
         self.error: BaseException | None = None
+        self._lock = threading.Lock()
+        """Held while the feeder reads and queues, and by ``cut``: a read and its queueing are one
+        step, so voice read before a cut is queued before its blank, never after it."""
 
     def stop(self) -> None:
         self._halt.set()
@@ -86,16 +91,39 @@ class SelfVoiceFeeder(threading.Thread):
     def run(self) -> None:
         try:
             while not self._halt.is_set():
-                self._step()
+                with self._lock:
+                    got = self._step()
+                if not got:
+                    time.sleep(POLL_SECONDS)  # plenty queued, or nothing came just now
         except BaseException as exc:  # handed to the pipeline, which reports it
             self.error = exc
             self._event(f"self voice failed: {exc.__class__.__name__}: {exc}")
             while not self._halt.wait(POLL_SECONDS):  # the speaker and the clock go on, silent
-                self._top_up(stall=False)
+                with self._lock:
+                    self._top_up(stall=False)
         finally:
             self.source.close()
 
-    def _step(self) -> None:
+    def cut(self, where: Callable[[], int], take_back: Callable[[int], object]) -> int:
+        """An interruption or a pause from ring position ``where()`` (the speaker's next block),
+        read once the feeder is out of the way, so a wait here cannot leave it behind the speaker:
+        ``take_back(position)`` takes the voice the source still holds (``QueuedVoice.clear`` or
+        ``hold``), then what is queued from there on is silenced, in the ring and in the analysis
+        (voice the generator must not hear). The feeder's reading and queueing cannot come
+        between: voice it read before the cut is already queued (and blanked here), and what is
+        left over queues only up to the position, which is returned."""
+        with self._lock:
+            position = where()
+            take_back(position)
+            self._pending = self._pending[: max(position - self.written, 0)]
+            if self.ring is not None:
+                self.ring.blank(position)
+            written = -(-self.written * ANALYSIS_RATE // self.rate)  # the analysis of all queued so far
+            self.analysis.blank(position * ANALYSIS_RATE // self.rate, written)
+            return position
+
+    def _step(self) -> bool:
+        """Read and queue once, without waiting; False when nothing came (the caller waits)."""
         if self.ring is not None and self.speaker_stopped is not None:
             reason = self.speaker_stopped()
             if reason is not None:
@@ -103,19 +131,19 @@ class SelfVoiceFeeder(threading.Thread):
         if len(self._pending):  # the ring was full last time: offer the rest first
             self._commit(np.zeros(0, np.float32))
         if self.ended_at is not None or len(self._pending) or self._space() <= 0:
-            time.sleep(POLL_SECONDS)  # plenty queued, or nothing more will come
             self._top_up(stall=False)
-            return
+            return False
         want = max(1, min(self._space(), int(READ_SECONDS * self.rate)) * self.source.rate // self.rate)
-        data = self.source.read(want, POLL_SECONDS)
+        data = self.source.read(want, 0.0)
         for text in self.source.events():
             self._event(text)
         if data is None:
             self._end()
         elif len(data):
             self._voice(data)
-            return
+            return True
         self._top_up(stall=self.ended_at is None)  # the source had nothing just now
+        return False
 
     def _lose_speaker(self, reason: str) -> None:
         """Pace the voice by the clock from now on; the ring (and what it still holds) is left."""

@@ -19,14 +19,20 @@ class Timeline:
         """Position of the first sample not yet taken."""
         self.end = 0
         """Position one past the last sample appended."""
+        self._muted: list[tuple[int, int]] = []
+        """Ranges ``blank`` silenced beyond ``end``: samples appended there come in silent."""
 
     def append(self, samples: np.ndarray) -> None:
         data = np.asarray(samples, np.float32).reshape(-1)
         if not len(data):
             return
         with self._lock:
-            self._parts.append(data.copy())
+            data = data.copy()
+            for lo, hi in self._muted:
+                data[max(lo - self.end, 0) : max(hi - self.end, 0)] = 0.0
             self.end += len(data)
+            self._parts.append(data)
+            self._muted = [(lo, hi) for lo, hi in self._muted if hi > self.end]
 
     def fill_to(self, position: int) -> int:
         """Append silence up to ``position``; return how many samples were filled."""
@@ -35,16 +41,20 @@ class Timeline:
             self.append(np.zeros(missing, np.float32))
         return max(missing, 0)
 
-    def blank(self, start: int) -> None:
-        """Silence the samples from position ``start`` on that are not yet taken: what an
-        interruption must not let the generator hear (a voice that will not be played)."""
+    def blank(self, start: int, stop: int | None = None) -> None:
+        """Silence the samples from position ``start`` to ``stop`` (None: all appended so far)
+        that are not yet taken, those appended later included: what an interruption must not
+        let the generator hear (a voice that will not be played)."""
         with self._lock:
+            stop = self.end if stop is None else int(stop)
             pos = self.taken
             for part in self._parts:
-                lo = max(start - pos, 0)
-                if lo < len(part):
-                    part[lo:] = 0.0
+                lo, hi = max(start - pos, 0), min(stop - pos, len(part))
+                if lo < hi:
+                    part[lo:hi] = 0.0
                 pos += len(part)
+            if stop > max(start, self.end):
+                self._muted.append((max(int(start), self.end), stop))
 
     def take(self, stop: int) -> np.ndarray:
         """Remove and return the samples from ``taken`` up to ``stop`` (clipped to ``end``)."""

@@ -214,9 +214,9 @@ class QueuedVoice(VoiceSource):
                 else:
                     self._queue[0] = (segment, data[len(take) :], rate, fed)
                 position = self.ring.write_pos + got
-                if segment != self._current:
-                    self._current = segment
-                    self.on_start(segment, position)
+                if segment != self._current:  # it starts where it is heard: the ring skips what the
+                    self._current = segment  # speaker passed before it came (an underrun)
+                    self.on_start(segment, max(position, self.ring.read_pos))
                 offset = self._offset.get(segment, 0)
                 self.marks.append((segment, position, offset, take, fed))
                 if self.on_queued is not None:

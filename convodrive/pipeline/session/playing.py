@@ -20,7 +20,8 @@ class PlaybackReport:
     """Seconds of the segment played (0 at ``started``)."""
     interrupted: bool
     at: float
-    """Monotonic time."""
+    """Monotonic time the speaker played the segment's first sample (``started``), its last
+    (``finished``), or when it was cleared (interrupted)."""
 
 
 class PlaybackTracker:
@@ -41,9 +42,12 @@ class PlaybackTracker:
         with self._lock:
             self._ended.add(segment)
 
-    def poll(self, voice: QueuedVoice, played: int, rate: int, now: float) -> list[tuple[Segment, int]]:
-        """Report what started and finished by ring position ``played``; return the finished
-        segments with the ring position of their end."""
+    def poll(
+        self, voice: QueuedVoice, played: int, rate: int, at_of: Callable[[int], float]
+    ) -> list[tuple[Segment, int]]:
+        """Report what started and finished by ring position ``played`` (what has left the
+        speaker), each at ``at_of(ring position)``: the monotonic time that sample left it, however
+        late this poll runs. Return the finished segments with the ring position of their end."""
         last: dict[Segment, int] = {}
         for segment, pos, _, data, _ in list(voice.marks):
             last[segment] = max(last.get(segment, 0), pos + len(data))
@@ -52,22 +56,22 @@ class PlaybackTracker:
             for segment, first in list(self._first.items()):
                 if segment not in self._started and played >= first:
                     self._started.add(segment)
-                    reports.append(PlaybackReport("started", segment, 0.0, False, now))
+                    reports.append(PlaybackReport("started", segment, 0.0, False, at_of(first)))
                 end = last.get(segment)
                 if segment in voice.ended and segment in self._ended and end is not None and played >= end:
-                    reports.append(PlaybackReport("finished", segment, (end - first) / rate, False, now))
+                    position = _position(voice, segment, end) / rate
+                    reports.append(PlaybackReport("finished", segment, position, False, at_of(end)))
                     done.append((segment, end))
                     del self._first[segment]
                     self._started.discard(segment)
         self._tell(reports)
         return done
 
-    def cleared(self, played: int, rate: int, at: float) -> None:
+    def cleared(self, voice: QueuedVoice, cut: int, rate: int, at: float) -> None:
+        """An interruption at ``at``: the playing segments finished, interrupted, with what plays
+        of them before ring position ``cut``."""
         with self._lock:
-            reports = [
-                PlaybackReport("finished", s, max(played - first, 0) / rate, True, at)
-                for s, first in self._first.items()
-            ]
+            reports = [PlaybackReport("finished", s, _position(voice, s, cut) / rate, True, at) for s in self._first]
             self._first.clear()
             self._started.clear()
         self._tell(reports)
@@ -79,3 +83,14 @@ class PlaybackTracker:
 
     def report(self) -> dict[str, Any]:
         return {"segments_playing": len(self._first)}
+
+
+def _position(voice: QueuedVoice, segment: Segment, upto: int) -> int:
+    """Samples of ``segment``'s own audio queued before ring position ``upto``: silence the
+    feeder queued between its parts (a voice that came slower than it plays) is not the
+    segment's, so it does not count."""
+    best = 0
+    for s, pos, offset, data, _ in list(voice.marks):
+        if s == segment and pos < upto:
+            best = max(best, offset + min(upto - pos, len(data)))
+    return best

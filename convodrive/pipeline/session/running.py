@@ -351,8 +351,16 @@ class SessionRun:
             if self.follower is not None:
                 self.follower.pump(now)
             elif self.speaker is not None and isinstance(self.voice, QueuedVoice) and self._started:
-                for segment, end in self.tracker.poll(self.voice, self.speaker.played(), self.speaker.rate, now):
-                    self._post(Event.SPEAKING_END, end / self.speaker.rate, {"segment": segment})
+                self._poll_playback(self.speaker, self.voice, now)
+
+    def _poll_playback(self, speaker: Speaker, voice: QueuedVoice, now: float) -> None:
+        """Tell what started and finished playing by ``now``, at the times the speaker played it."""
+        heard = speaker.position_at(now)
+        if heard is None:
+            return
+        rate, zero = speaker.rate, now - heard  # when ring position 0 left the speaker
+        for segment, end in self.tracker.poll(voice, int(heard * rate), rate, lambda pos: zero + pos / rate):
+            self._post(Event.SPEAKING_END, end / rate, {"segment": segment})
 
     # -- closing ---------------------------------------------------------------------------------------------
     def close(self) -> DriveResult:

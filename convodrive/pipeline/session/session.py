@@ -32,7 +32,7 @@ from convodrive.generators.base import Event, Generator
 from convodrive.pipeline.session.inputs import PushedPartner, QueuedVoice, Segment, as_mono
 from convodrive.pipeline.session.playing import PlaybackReport
 from convodrive.pipeline.session.running import SessionRequest, SessionRun
-from convodrive.pipeline.session.sources import SELF_JITTER, Speaker
+from convodrive.pipeline.session.sources import SELF_JITTER
 
 USER_EVENTS = frozenset(
     {Event.USER_SPEECH_START, Event.USER_SPEECH_STOP, Event.USER_TURN_START, Event.USER_AWAY, Event.USER_BACK}
@@ -89,12 +89,10 @@ class LiveSession(SessionRun):
         of the segments known now are ignored from here on."""
         at = time.monotonic() if at is None else at
         with self._lock:
-            voice, speaker = self.voice, self.speaker
-            if isinstance(voice, QueuedVoice) and speaker is not None:
-                cut = speaker.ring.read_pos + speaker.block
-                voice.clear()
-                self._silence_from(speaker, cut)
-                self.tracker.cleared(speaker.played(), speaker.rate, at)
+            voice, speaker, feeder = self.voice, self.speaker, self.feeder
+            if isinstance(voice, QueuedVoice) and speaker is not None and feeder is not None:
+                cut = feeder.cut(lambda: speaker.ring.read_pos + speaker.block, lambda _: voice.clear())
+                self.tracker.cleared(voice, cut, speaker.rate, at)
             elif self.follower is not None:
                 self.follower.clear()
                 where = self.time_at(at)
@@ -106,20 +104,12 @@ class LiveSession(SessionRun):
         """Hold the agent's voice where it is (LiveKit's possible false interruption)."""
         at = time.monotonic() if at is None else at
         with self._lock:
-            voice, speaker = self.voice, self.speaker
-            if isinstance(voice, QueuedVoice) and speaker is not None:
-                cut = speaker.ring.read_pos + speaker.block
-                voice.hold(cut)
-                self._silence_from(speaker, cut)
+            voice, speaker, feeder = self.voice, self.speaker, self.feeder
+            if isinstance(voice, QueuedVoice) and speaker is not None and feeder is not None:
+                feeder.cut(lambda: speaker.ring.read_pos + speaker.block, voice.hold)
             elif self.follower is not None:
                 self.follower.pause(at)
         self.event(Event.PAUSED, at)
-
-    def _silence_from(self, speaker: Speaker, cut: int) -> None:
-        """Silence the queued voice from ring position ``cut`` on, in the ring and in what the
-        generator has not heard yet."""
-        speaker.ring.blank(cut)
-        self.self_line.blank(int(cut * ANALYSIS_RATE / speaker.rate))
 
     def resume_self(self, at: float | None = None) -> None:
         at = time.monotonic() if at is None else at

@@ -64,3 +64,16 @@ def test_timeline_blank_silences_what_is_not_yet_taken() -> None:
     np.testing.assert_array_equal(line.take(3), [1, 1, 1])
     line.blank(4)
     np.testing.assert_array_equal(line.take(10), [1, 0, 0, 0, 0, 0, 0])
+
+
+def test_timeline_blank_to_a_stop_also_silences_what_comes_later() -> None:
+    """A cut silences up to where the voice was queued, also samples of that stretch still on their
+    way (in a resampler): they come in silent; what follows the stretch comes in whole."""
+    from convodrive.audio.live.timeline import Timeline
+
+    line = Timeline()
+    line.append(np.ones(4, np.float32))
+    line.blank(2, 7)
+    line.append(np.full(2, 2.0, np.float32))
+    line.append(np.full(3, 3.0, np.float32))
+    np.testing.assert_array_equal(line.take(9), [1, 1, 0, 0, 0, 0, 0, 3, 3])

@@ -75,6 +75,12 @@ def kinds(session: LiveSession) -> list[Event]:
     return out
 
 
+def told_at(session: LiveSession, kind: Event) -> float:
+    """When (monotonic) the session was last told ``kind``: for ``INTERRUPTED``, when the framework's
+    interruption reached it, which a busy event loop may deliver well after it was raised."""
+    return [t for t, e in session.events if e.kind is kind][-1]
+
+
 def eye_angle(out_dir) -> np.ndarray:
     """Degrees the left eye turned, per frame of the recorder's motion.npz in ``out_dir``."""
     from convodrive.motion.npz import load_clip

@@ -12,7 +12,7 @@ import pytest
 from convodrive.audio.source import ANALYSIS_RATE
 from convodrive.generators.base import Event
 from convodrive.pipeline.session import LiveSession
-from tests.pipeline.session.helpers import CHUNK, CLOSED, feed_silence, mouth, onset, voice, wait_until
+from tests.pipeline.session.helpers import CHUNK, CLOSED, feed_silence, mouth, onset, told_at, voice, wait_until
 
 pytestmark = [pytest.mark.espeak]
 
@@ -57,11 +57,14 @@ def test_player_plays_the_voice_and_moves_the_mouth_with_it(tmp_path):
     assert reports[1].position == pytest.approx(len(pcm) / ANALYSIS_RATE, abs=0.05)
     kinds = [e.kind for _, e in session.events]
     assert kinds.index(Event.SPEAKING_START) < kinds.index(Event.SPEAKING_END)
-    # The speaker played the voice: the played samples hold it, once.
+    # The speaker played the voice: the played samples hold it, once, less what came after its
+    # time (a feeder the CPU starved past its lead): the speaker played silence there and counted it.
     played = session.speaker.samples()
     assert np.abs(played).max() > 0.3
     voiced = np.count_nonzero(np.abs(played) > 0.02) / ANALYSIS_RATE
-    assert voiced == pytest.approx(np.count_nonzero(np.abs(pcm / 32768.0) > 0.02) / ANALYSIS_RATE, rel=0.05)
+    expected = np.count_nonzero(np.abs(pcm / 32768.0) > 0.02) / ANALYSIS_RATE
+    late = session.speaker.ring.underrun_samples / ANALYSIS_RATE
+    assert expected * 0.95 - late <= voiced <= expected * 1.05
     # The mouth opens with the played voice, not with the feeding (lead ahead of it).
     first = np.nonzero(np.abs(played) > 0.05)[0][0] / ANALYSIS_RATE
     times, jaw = mouth(session)
@@ -92,11 +95,16 @@ def test_player_interruption_drops_unplayed_voice_and_shuts_the_mouth(tmp_path):
         session.close()
     finished = [r for r in reports if r.kind == "finished"]
     assert len(finished) == 1 and finished[0].interrupted
-    assert finished[0].position == pytest.approx(1.0, abs=0.15)
     played = session.speaker.samples()
-    after = int((session.speaker.position_at(cut) + 0.03) * ANALYSIS_RATE)
+    told = told_at(session, Event.INTERRUPTED)
+    after = int((session.speaker.position_at(told) + 0.03) * ANALYSIS_RATE)
     assert np.abs(played[after:]).max() < 1e-6  # nothing of the reply after the cut (one block)
     assert np.abs(played[:after]).max() > 0.3
+    # The position told is how much of the reply played: the part of it the speaker played
+    # before the cut, whatever silence a slow feed put in between.
+    voiced = np.count_nonzero(np.abs(played[:after]) > 0.02) / ANALYSIS_RATE
+    heard = pcm[: int(finished[0].position * ANALYSIS_RATE)] / 32768.0
+    assert voiced == pytest.approx(np.count_nonzero(np.abs(heard) > 0.02) / ANALYSIS_RATE, abs=0.03)
     assert session.voice.dropped > 0.5
     times, jaw = mouth(session)
     assert jaw[(times > cut - 0.5) & (times < cut)].max() > 0.2  # talking up to the cut
