@@ -16,6 +16,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
+from typing import Any
 
 from convodrive.backends.servo.servo_options import DynamixelOptions
 from convodrive.plugins.options import check_options
@@ -155,32 +156,26 @@ def _serve(emulator: object, describe: str, log: StateLog) -> int:
 
 def run_dynamixel(args: argparse.Namespace) -> int:
     from convodrive.backends.servo.dynamixel_emulator import DynamixelEmulator
+
+    return _run_bus(args, DynamixelEmulator, DynamixelOptions)
+
+
+def run_feetech(args: argparse.Namespace) -> int:
+    from convodrive.backends.servo.feetech_emulator import FeetechEmulator
+    from convodrive.backends.servo.feetech_options import FeetechOptions
+
+    return _run_bus(args, FeetechEmulator, FeetechOptions)
+
+
+def _run_bus(args: argparse.Namespace, emulator: Callable[..., Any], options: type) -> int:
+    """A serial-bus head (Dynamixel or Feetech): its servos on a pty, faults checked before it starts."""
     from convodrive.backends.servo.emulator_faults import parse_fault
 
     ids = parse_ids(args.ids)
     faults = [parse_fault(f) for f in args.fault]
-    baudrate = check_options(DynamixelOptions, {"baudrate": parse_scalar(args.baudrate)}, plugin="--baudrate")
+    baudrate = check_options(options, {"baudrate": parse_scalar(args.baudrate)}, plugin="--baudrate")
     log = StateLog("servo", "torque")
-    emu = DynamixelEmulator(ids, args.model, baudrate=baudrate["baudrate"], link=args.link, on_torque=log)
-    for fault in faults:
-        emu.check_fault(fault)
-    emu.start()
-    for fault in faults:
-        emu.schedule(fault)
-    model = next(iter(emu.servos.values())).model.name
-    return _serve(emu, f"emulating {len(ids)} {model} servo(s), ids {args.ids}; Ctrl-C to stop", log)
-
-
-def run_feetech(args: argparse.Namespace) -> int:
-    from convodrive.backends.servo.dynamixel_emulator import parse_fault
-    from convodrive.backends.servo.feetech_emulator import FeetechEmulator
-    from convodrive.backends.servo.feetech_options import FeetechOptions
-
-    ids = parse_ids(args.ids)
-    faults = [parse_fault(f) for f in args.fault]
-    baudrate = check_options(FeetechOptions, {"baudrate": parse_scalar(args.baudrate)}, plugin="--baudrate")
-    log = StateLog("servo", "torque")
-    emu = FeetechEmulator(ids, args.model, baudrate=baudrate["baudrate"], link=args.link, on_torque=log)
+    emu = emulator(ids, args.model, baudrate=baudrate["baudrate"], link=args.link, on_torque=log)
     for fault in faults:
         emu.check_fault(fault)
     emu.start()
