@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from convodrive.backends.servo.register_map import RegisterMap
 from convodrive.plumbing.errors import UserError
 
 
@@ -25,7 +26,7 @@ class Register:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class ControlTable:
+class ControlTable(RegisterMap):
     """One family's register map plus the facts needed to turn ticks into radians."""
 
     family: str
@@ -42,30 +43,6 @@ class ControlTable:
     """Hardware_Error_Status bit -> fault name."""
     defaults: dict[str, int]
     """Factory values the emulator starts from (besides model number and ID)."""
-
-    @property
-    def rad_per_tick(self) -> float:
-        return self.span_rad / self.resolution
-
-    @property
-    def max_tick(self) -> int:
-        return self.resolution - 1
-
-    @property
-    def size(self) -> int:
-        return max(r.address + r.size for r in self.registers.values())
-
-    def reg(self, name: str) -> Register:
-        try:
-            return self.registers[name]
-        except KeyError:
-            raise KeyError(f"{self.family} has no register {name!r}") from None
-
-    def has(self, name: str) -> bool:
-        return name in self.registers
-
-    def decode_errors(self, status: int) -> list[str]:
-        return [name for bit, name in sorted(self.error_bits.items()) if status & (1 << bit)]
 
     def encode(self, value: int, reg: Register) -> list[int]:
         """``encode`` (the same little-endian words for every family): ``servo_bus`` asks the table."""

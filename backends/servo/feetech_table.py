@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from convodrive.backends.servo.register_map import RegisterMap
 from convodrive.plumbing.errors import UserError
 
 
@@ -32,7 +33,7 @@ class Register:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class FeetechTable:
+class FeetechTable(RegisterMap):
     """One series' register map, byte order and the facts that turn steps into radians."""
 
     family: str
@@ -50,30 +51,6 @@ class FeetechTable:
     """Status-packet error bit -> fault name (the same bits as the ``Status`` register)."""
     defaults: dict[str, int]
     """Factory values the emulator starts from (besides model number and ID)."""
-
-    @property
-    def rad_per_tick(self) -> float:
-        return self.span_rad / self.resolution
-
-    @property
-    def max_tick(self) -> int:
-        return self.resolution - 1
-
-    @property
-    def size(self) -> int:
-        return max(r.address + r.size for r in self.registers.values())
-
-    def reg(self, name: str) -> Register:
-        try:
-            return self.registers[name]
-        except KeyError:
-            raise KeyError(f"{self.family} has no register {name!r}") from None
-
-    def has(self, name: str) -> bool:
-        return name in self.registers
-
-    def decode_errors(self, status: int) -> list[str]:
-        return [name for bit, name in sorted(self.error_bits.items()) if status & (1 << bit)]
 
     def encode(self, value: int, reg: Register) -> bytes:
         """Bytes of a register value in this series' byte order, sign bit set for negatives."""
