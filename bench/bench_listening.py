@@ -9,7 +9,7 @@ the partner leaking into self's channel and self into the partner's at -12 dB (`
 self's voice activity wrong on partner-only frames and the jaw shut there. Each figure is checked
 against its target in ``targets``. No timings: the load average is printed for completeness only.
 
-Usage: .venv/bin/python bench/bench_listening.py [--takes K] [--seed N] [--bleed-db DB]
+Usage: .venv/bin/python bench/bench_listening.py [--takes K] [--seed N] [--bleed-db DB] [--real N]
 """
 
 from __future__ import annotations
@@ -121,14 +121,9 @@ def check(results: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--takes", type=int, default=8)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--bleed-db", type=float, default=-12.0)
-    args = parser.parse_args()
-    gen = ProceduralGenerator()
-    sets: dict[str, tuple[DyadicAudio, Segments]] = {
+def espeak_sets() -> dict[str, tuple[DyadicAudio, Segments]]:
+    """The bundled dialogue and the tests' espeak-ng dialogues, each with its turns."""
+    sets = {
         "bundled": (
             AudioSource(REPO / "samples/dialogue.wav").read_all(),
             load_segments(REPO / "samples/dialogue.json"),
@@ -138,6 +133,32 @@ def main() -> int:
         for name in DIALOGUES:
             path, audio = make(name, Path(tmp))
             sets[name] = (audio, reference(path))
+    return sets
+
+
+def real_sets(count: int) -> dict[str, tuple[DyadicAudio, Segments]]:
+    """``count`` one-minute dialogues of two real speakers no shipped model heard."""
+    from tests.real_voices import fetch, real_dialogue
+
+    voices, why = fetch()
+    if voices is None:
+        raise SystemExit(f"bench_listening: no real voices: {why}")
+    dialogues = (real_dialogue(voices, seed=seed, seconds=60.0) for seed in range(count))
+    return {f"real-{i}": (d.audio, d.truth) for i, d in enumerate(dialogues)}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--takes", type=int, default=8)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--bleed-db", type=float, default=-12.0)
+    parser.add_argument(
+        "--real", type=int, default=0, metavar="N",
+        help="instead: N one-minute dialogues of the real held-out voices (tests/real_voices.py)",
+    )  # fmt: skip
+    args = parser.parse_args()
+    gen = ProceduralGenerator()
+    sets = real_sets(args.real) if args.real else espeak_sets()
     results = {}
     for name, (audio, ref) in sets.items():
         clean = [behaviour_figures(c, audio, ref) for c in gen.generate(audio, args.seed, args.takes)]
@@ -145,6 +166,7 @@ def main() -> int:
         bled = [behaviour_figures(c, bled_audio, ref) for c in gen.generate(bled_audio, args.seed, args.takes)]
         results[name] = {"clean": summarise(clean), "bleed": bleed_summary(bled)}
     report = {
+        "dialogues_from": f"{args.real} real" if args.real else "espeak-ng and bundled",
         "takes": args.takes,
         "seed": args.seed,
         "bleed_db": args.bleed_db,

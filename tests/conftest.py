@@ -17,12 +17,14 @@ at the top says ``pytestmark = require("hardware")`` above those imports.
 from __future__ import annotations
 
 import ctypes
+import fcntl
 import functools
 import importlib.util
 import os
 import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -106,6 +108,13 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
             pytest.skip(reason)
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Tests marked ``slow`` (half a minute or more, mostly in real time) go first: the suite runs on
+    two workers (pytest-xdist), and one started last would leave the other idle at the end. The
+    order is otherwise kept, so each worker collects the same list."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 def realtime_allowed() -> bool:
     """Whether this process may use SCHED_FIFO (root, CAP_SYS_NICE or an rtprio limit)."""
     import threading
@@ -175,10 +184,33 @@ def tone_dialogue(tmp_path: Path) -> Path:
     return path
 
 
+def built_once(tmp_path_factory: pytest.TempPathFactory, name: str, build: Callable[[Path], object]) -> Path:
+    """The folder ``name`` that ``build(folder)`` makes once per test run, shared by pytest-xdist's
+    workers: the first to ask builds it under a lock while the others wait, so a tiny model that
+    takes a minute to train and export is made once, not once a worker. ``build`` must make the
+    same folder whichever worker runs it (fixed seeds, no worker-specific paths inside)."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # the run's base folder; each worker's own is below it
+    folder, done = root / "shared" / name, root / "shared" / f"{name}.done"
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    with open(root / "shared" / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, or the worker dies
+        if not done.exists():
+            shutil.rmtree(folder, ignore_errors=True)  # a worker that died half-way left it
+            folder.mkdir()
+            build(folder)
+            done.touch()
+    return folder
+
+
 @pytest.fixture(scope="session")
 def plugin_site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """tests/plugin_pkg installed into a folder of its own: put it on PYTHONPATH to use its plugins."""
-    target = tmp_path_factory.mktemp("site")
+    return built_once(tmp_path_factory, "site", _install_plugin_pkg)
+
+
+def _install_plugin_pkg(target: Path) -> None:
     build = subprocess.run(
         [
             sys.executable,
@@ -198,7 +230,6 @@ def plugin_site(tmp_path_factory: pytest.TempPathFactory) -> Path:
         timeout=180,
     )
     assert build.returncode == 0, build.stderr
-    return target
 
 
 @pytest.fixture(scope="session")
@@ -206,7 +237,7 @@ def tiny_corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Six 4 s conversations, two takes each, two speaker styles (tests/corpora.py)."""
     from tests.corpora import write_tiny_corpus
 
-    return write_tiny_corpus(tmp_path_factory.mktemp("corpus") / "tiny")
+    return built_once(tmp_path_factory, "corpus", lambda folder: write_tiny_corpus(folder / "tiny")) / "tiny"
 
 
 @pytest.fixture(scope="session")
@@ -214,17 +245,23 @@ def tiny_fgd_run(tiny_corpus: Path, tmp_path_factory: pytest.TempPathFactory) ->
     """The ``fgd`` recipe's tiny preset trained for 10 steps on ``tiny_corpus`` (in this process)."""
     from convodrive.training.loop import TrainRequest, train
 
-    out = tmp_path_factory.mktemp("tiny_fgd") / "run"
-    train(TrainRequest("fgd", tiny_corpus, preset="tiny", steps=10, out=out, device="cpu", progress=False))
-    return out
+    def build(folder: Path) -> None:
+        train(
+            TrainRequest("fgd", tiny_corpus, preset="tiny", steps=10, out=folder / "run", device="cpu", progress=False)
+        )
+
+    return built_once(tmp_path_factory, "tiny_fgd", build) / "run"
 
 
 @pytest.fixture(scope="session")
-def tiny_fgd_model(tiny_fgd_run: Path) -> Path:
+def tiny_fgd_model(tiny_fgd_run: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """``tiny_fgd_run`` exported to an ONNX model folder."""
     from convodrive.training.export import export_model
 
-    return export_model(tiny_fgd_run, tiny_fgd_run.parent / "model").folder
+    return (
+        built_once(tmp_path_factory, "tiny_fgd_model", lambda folder: export_model(tiny_fgd_run, folder / "model"))
+        / "model"
+    )
 
 
 @pytest.fixture(scope="session")

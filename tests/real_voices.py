@@ -60,11 +60,11 @@ class RealDialogue:
     """The voices folder (a ``--voices`` folder per package)."""
 
 
-def real_dialogue(voices: Path, seed: int = 4) -> RealDialogue:
-    """About 20 s of the two held-out speakers in conversation, with the true turns."""
+def real_dialogue(voices: Path, seed: int = 4, seconds: float = SECONDS) -> RealDialogue:
+    """About ``seconds`` of the two held-out speakers in conversation, with the true turns."""
     speakers = {s.name: s for folder in ("librivox", "asterisk-en") for s in scan_voices(voices / folder)}
     me, partner = (RecordedVoice(speakers[name], amp) for name, amp in zip(HELD_OUT, (0.6, 0.5)))
-    dialogue = converse((me, partner), SECONDS, np.random.default_rng(seed))
+    dialogue = converse((me, partner), seconds, np.random.default_rng(seed))
     summary = dialogue.summary()["speech"]
     truth = Segments(
         tuple((a, b) for a, b in summary["self"]), tuple((a, b) for a, b in summary["partner"]), "real voices"

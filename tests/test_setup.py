@@ -50,9 +50,28 @@ def _fresh_venv(project: Path) -> None:
     (ours / "shared.pth").write_text(f"{site}\n")
 
 
+def _shared_dev_tools(project: Path) -> None:
+    """Reachy Mini's daemon venv and the glTF validator, as this checkout has them (a venv that sees
+    its packages, a link): ``--dev`` then checks them and moves on, as on a second run, instead of
+    fetching 400 MB again. What setup prints for its own .venv is under test, not pip's cache."""
+    reachy = REPO / ".venv-reachy"
+    theirs = next((reachy / "lib").glob("python3*/site-packages"), None) if reachy.is_dir() else None
+    if theirs is not None:
+        subprocess.run(
+            [str(reachy / "bin" / "python"), "-m", "venv", "--without-pip", str(project / ".venv-reachy")], check=True
+        )
+        ours = next((project / ".venv-reachy" / "lib").glob("python3*/site-packages"))
+        (ours / "shared.pth").write_text(f"{theirs}\n")
+    node_modules = REPO / "tools" / "node" / "node_modules"
+    if node_modules.is_dir():
+        (project / "tools" / "node").mkdir(parents=True, exist_ok=True)
+        (project / "tools" / "node" / "node_modules").symlink_to(node_modules)
+
+
 def test_a_fresh_setup_prints_only_its_own_lines(tmp_path: Path) -> None:
     project = _copy_of_the_project(tmp_path / "convodrive")
     _fresh_venv(project)
+    _shared_dev_tools(project)
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONWARNINGS", "VIRTUAL_ENV")}
     out = subprocess.run(
         ["scripts/setup.sh", "--dev"], cwd=project, capture_output=True, text=True, timeout=600, env=env

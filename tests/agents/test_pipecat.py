@@ -68,9 +68,13 @@ def reply(pcm: np.ndarray, context: str) -> list:
     return [TTSStartedFrame(context_id=context), *chunks, TTSStoppedFrame(context_id=context)]
 
 
+def reply_started(session: LiveSession, segment: str) -> bool:
+    return any(e.kind is Event.SPEAKING_START and e.info.get("segment") == segment for _, e in list(session.events))
+
+
 async def converse(session: LiveSession, output, cut_after: float) -> dict[str, float]:
-    """A user turn, thinking with a tool call, a reply played whole, a second reply interrupted;
-    returns when (monotonic) each step was sent."""
+    """A user turn, thinking with a tool call, a reply played whole, a second reply interrupted
+    ``cut_after`` seconds after it started; returns when (monotonic) each step was sent."""
     worker = PipelineWorker(Pipeline([output]), observers=[ConvodriveObserver(session)], cancel_on_idle_timeout=False)
     started = asyncio.Event()
 
@@ -100,6 +104,10 @@ async def converse(session: LiveSession, output, cut_after: float) -> dict[str, 
         marks["reply2"] = time.monotonic()
         for frame in reply(pcm, "c2"):
             await worker.queue_frame(frame)
+        # The cut comes while the second reply plays: on a busy machine its start may lag the queueing.
+        deadline = time.monotonic() + 10.0
+        while not reply_started(session, "c2") and time.monotonic() < deadline:
+            await asyncio.sleep(0.01)
         await asyncio.sleep(cut_after)
         marks["cut"] = time.monotonic()
         await worker.queue_frame(InterruptionFrame())
@@ -118,7 +126,7 @@ def run(tmp_path, mode: str):
     )
     output = FakeSpeaker() if mode == "follower" else ConvodriveOutputTransport(session)
     try:
-        marks = asyncio.run(converse(session, output, cut_after=1.2))
+        marks = asyncio.run(converse(session, output, cut_after=1.0))
     finally:
         session.close()
     return session, output, marks

@@ -52,6 +52,7 @@ def short_dialogue(tmp_path: Path) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_demo_drives_every_body_and_reports(short_dialogue: Path, tmp_path: Path) -> None:
     out_dir = tmp_path / "demo"
     out = run_cli("demo", "--audio", str(short_dialogue), "--out", str(out_dir), timeout=600)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.backends.servo import BUS_LATENCY_MS
 from tests.conftest import require
 
 pytestmark = require("hardware")
@@ -34,14 +35,15 @@ def test_scan_lists_the_emulated_servos(capsys) -> None:  # type: ignore[no-unty
 
 
 def test_feetech_scan_pings_each_id(capsys) -> None:  # type: ignore[no-untyped-def]
-    """A Feetech bus has no broadcast ping: the scan asks the ids one by one (here 0-40, at 1 ms)."""
-    with FeetechEmulator([1, 2, 7, 30], "sts3215") as emu:
-        args = ["servo", "scan", "--bus", "feetech", "--port", emu.port, "--ids", "0-40", "--latency-ms", "1"]
+    """A Feetech bus has no broadcast ping: the scan asks the ids one by one (here 0-12)."""
+    with FeetechEmulator([1, 2, 7, 12], "sts3215") as emu:
+        latency = str(BUS_LATENCY_MS)  # each absent id costs a timeout: 2 x latency
+        args = ["servo", "scan", "--bus", "feetech", "--port", emu.port, "--ids", "0-12", "--latency-ms", latency]
         assert main(args) == 0
         packets = emu.counters["packets"]
     rows = [line.split() for line in capsys.readouterr().out.splitlines()[1:]]
-    assert [(int(r[1]), r[2], r[3]) for r in rows] == [(i, "sts3215", "3.10") for i in (1, 2, 7, 30)]
-    assert packets >= 41 + 4, "every id asked, and each servo found asked its firmware"
+    assert [(int(r[1]), r[2], r[3]) for r in rows] == [(i, "sts3215", "3.10") for i in (1, 2, 7, 12)]
+    assert packets >= 13 + 4, "every id asked, and each servo found asked its firmware"
     with FeetechEmulator([], "sts3215") as emu:
         assert main(["servo", "scan", "--bus", "feetech", "--port", emu.port, "--ids", "1-3"]) == 2
     assert "no servo answers" in capsys.readouterr().err

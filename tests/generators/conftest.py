@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.conftest import built_once
+
 
 def _untrained_spec(speakers: list[str]):  # type: ignore[no-untyped-def]
     """What a corpus would tell an export (features, statistics, speakers), for fresh weights."""
@@ -39,9 +41,10 @@ def a2p_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
     the weights), exported with parity: twelve graphs, 60-frame windows."""
     from convodrive.training.export import export_untrained
 
-    out = tmp_path_factory.mktemp("a2p") / "model"
-    export_untrained("a2p", _untrained_spec(["calm", "lively"]), out, preset="tiny", seed=1)
-    return out
+    def build(folder: Path) -> None:
+        export_untrained("a2p", _untrained_spec(["calm", "lively"]), folder / "model", preset="tiny", seed=1)
+
+    return built_once(tmp_path_factory, "a2p", build) / "model"
 
 
 @pytest.fixture(scope="session")
@@ -52,19 +55,21 @@ def probtalk_stages(tiny_corpus: Path, tmp_path_factory: pytest.TempPathFactory)
     from convodrive.training.export import export_model
     from convodrive.training.loop import TrainRequest, train
 
-    root = tmp_path_factory.mktemp("probtalk")
-    runs: dict[str, Path] = {}
-    previous: Path | None = None
-    for stage in ("vq", "predictor", "refiner"):
-        runs[stage] = root / stage
-        request = TrainRequest(
-            "probtalk", tiny_corpus, preset="tiny", stage=stage, out=runs[stage], device="cpu", progress=False,
-            init=previous,
-        )  # fmt: skip
-        train(request)
-        previous = runs[stage]
-    runs["model"] = export_model(runs["refiner"], root / "model").folder
-    return runs
+    stages = ("vq", "predictor", "refiner")
+
+    def build(root: Path) -> None:
+        previous: Path | None = None
+        for stage in stages:
+            request = TrainRequest(
+                "probtalk", tiny_corpus, preset="tiny", stage=stage, out=root / stage, device="cpu", progress=False,
+                init=previous,
+            )  # fmt: skip
+            train(request)
+            previous = root / stage
+        export_model(root / "refiner", root / "model")
+
+    root = built_once(tmp_path_factory, "probtalk", build)
+    return {name: root / name for name in (*stages, "model")}
 
 
 @pytest.fixture(scope="session")

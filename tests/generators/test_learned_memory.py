@@ -17,6 +17,7 @@ from tests.corpora import turn_taking_audio
 pytestmark = [require("torch"), require("onnxruntime"), pytest.mark.timeout(900)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("name", "options"),
     [("a2p", {}), ("probtalk", {"window": 48, "context": 8})],

@@ -29,6 +29,7 @@ def face_crop(image: np.ndarray, face: str) -> np.ndarray:
     return image[max(y - r, 0) : y + r, max(x - r, 0) : x + r].astype(np.float32)
 
 
+@pytest.mark.slow
 def test_live_run_into_servo_head_and_browser_page(pulse, tmp_path: Path) -> None:
     self_wav, partner_wav = dialogue_halves(tmp_path / "in", seconds=12.0)
     emulator = subprocess.Popen(

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import require, run_cli
+from tests.conftest import built_once, require, run_cli
 
 pytestmark = [require("torch"), require("onnxruntime")]
 
@@ -30,7 +30,14 @@ def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Conversations long enough for a body example (7 s of VQ history and a 2 s window)."""
     from tests.corpora import write_tiny_corpus
 
-    return write_tiny_corpus(tmp_path_factory.mktemp("a2p") / "corpus", conversations=4, seconds=12.0)
+    return (
+        built_once(
+            tmp_path_factory,
+            "a2p-corpus",
+            lambda folder: write_tiny_corpus(folder / "corpus", conversations=4, seconds=12.0),
+        )
+        / "corpus"
+    )
 
 
 @pytest.fixture(scope="module")
@@ -38,21 +45,22 @@ def runs(corpus: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The six stages, in process (the CLI's own path is under test below, in the mistakes)."""
     from convodrive.training.loop import TrainRequest, train
 
-    root = tmp_path_factory.mktemp("a2p-runs")
-    for stage, inits in (
-        ("lip", []),
-        ("face", ["lip"]),
-        ("vq", []),
-        ("guide", ["vq"]),
-        ("body", ["guide"]),
-        ("distill", ["face", "body"]),
-    ):
-        request = TrainRequest(
-            "a2p", corpus, preset="tiny", stage=stage, out=root / stage, steps=2, device="cpu", progress=False,
-            init=[root / i for i in inits] or None,
-        )  # fmt: skip
-        assert train(request).step == 2
-    return root
+    def build(root: Path) -> None:
+        for stage, inits in (
+            ("lip", []),
+            ("face", ["lip"]),
+            ("vq", []),
+            ("guide", ["vq"]),
+            ("body", ["guide"]),
+            ("distill", ["face", "body"]),
+        ):
+            request = TrainRequest(
+                "a2p", corpus, preset="tiny", stage=stage, out=root / stage, steps=2, device="cpu", progress=False,
+                init=[root / i for i in inits] or None,
+            )  # fmt: skip
+            assert train(request).step == 2
+
+    return built_once(tmp_path_factory, "a2p-runs", build)
 
 
 def test_distillation_starts_from_both_sides_with_students_as_copies(runs: Path) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from tests.backends.servo import BUS_LATENCY_MS
 from tests.conftest import require
 
 pytestmark = require("hardware")
@@ -20,7 +21,7 @@ XL330 = model("xl330")
 @pytest.fixture()
 def head():
     with DynamixelEmulator(range(1, 4), "xl330") as emu:
-        bus = DynamixelBus(emu.port, [Motor(f"m{i}", i, XL330) for i in range(1, 4)], latency_ms=40)
+        bus = DynamixelBus(emu.port, [Motor(f"m{i}", i, XL330) for i in range(1, 4)], latency_ms=BUS_LATENCY_MS)
         bus.connect()
         yield emu, bus
         bus.disconnect()

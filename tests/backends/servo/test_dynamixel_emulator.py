@@ -8,6 +8,7 @@ import time
 
 import pytest
 
+from tests.backends.servo import BUS_LATENCY_MS
 from tests.conftest import require
 
 pytestmark = require("hardware")
@@ -22,7 +23,9 @@ from convodrive.plumbing.errors import UserError  # noqa: E402
 
 
 @pytest.fixture()
-def bus():
+def bus(monkeypatch: pytest.MonkeyPatch):
+    # The SDK's own port takes its timeouts from a module constant (16 ms: a 34 ms reply timeout).
+    monkeypatch.setattr(sdk.port_handler, "LATENCY_TIMER", BUS_LATENCY_MS)
     with DynamixelEmulator(range(1, 4), "xl330") as emu:
         port = sdk.PortHandler(emu.port)
         assert port.openPort()

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from tests.conftest import require
 
@@ -140,6 +141,7 @@ def test_the_only_servo_head_failing_exits_3(tmp_path: Path) -> None:
     assert exit_code(result) == 3
 
 
+@pytest.mark.slow
 def test_convodrive_drive_at_30_hz_keeps_every_goal_inside_the_limits(tmp_path: Path) -> None:
     """The command a user runs against ``convodrive emulate feetech``, in real time."""
     with start_emulated_feetech() as emu:

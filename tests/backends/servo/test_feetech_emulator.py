@@ -6,6 +6,7 @@ import time
 
 import pytest
 
+from tests.backends.servo import BUS_LATENCY_MS
 from tests.conftest import require
 
 pytestmark = require("hardware")
@@ -22,7 +23,7 @@ HEALTH = ["Present_Position", "Present_Load", "Present_Voltage", "Present_Temper
 
 
 def bus_for(emu: FeetechEmulator, model: str = "sts3215", ids=range(1, 8)) -> FeetechBus:
-    bus = FeetechBus(emu.port, [Motor(f"s{i}", i, ft.model(model)) for i in ids], latency_ms=40)
+    bus = FeetechBus(emu.port, [Motor(f"s{i}", i, ft.model(model)) for i in ids], latency_ms=BUS_LATENCY_MS)
     bus.connect()
     return bus
 
