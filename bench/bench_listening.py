@@ -7,7 +7,9 @@ minute (pooled over the takes' listening time), the share of nods within 600 ms 
 pause, head speed, and the speaking-to-listening head speed ratio; then the same dialogues with
 the partner leaking into self's channel and self into the partner's at -12 dB (``add_bleed``):
 self's voice activity wrong on partner-only frames and the jaw shut there. Each figure is checked
-against its target in ``targets``. No timings: the load average is printed for completeness only.
+against its target in ``targets``. ``--real N``: instead, N one-minute dialogues of two real
+recorded speakers held out of every corpus (tests/real_voices.py), with their true turns. No
+timings: the load average is printed for completeness only.
 
 Usage: .venv/bin/python bench/bench_listening.py [--takes K] [--seed N] [--bleed-db DB] [--real N]
 """

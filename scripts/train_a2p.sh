@@ -23,6 +23,8 @@
 # corpus's audio is). FGD uses the embedder shipped in convodrive/eval/fgd_model/ (made by
 # scripts/train_fgd.sh when missing) or FGD_MODEL=DIR; SAMPLES (default 2) sets the takes per
 # test conversation, MAX_CONVERSATIONS=N scores only the first N (default: all).
+# REAL_VOICES=1 (see scripts/train_corpus.sh) mixes real recorded voices into the corpus and augments
+# every stage that hears audio (--set augment=all); the card then lists the voices and their licences.
 # Uses CUDA when torch sees a GPU (--device auto). Logs: RUN_DIR/{face,body,distill}.log.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -43,11 +45,12 @@ stage_steps() { # STAGE FULL: STEPS_<stage> if set, else FULL x SCALE
 }
 
 train() { # STAGE STEPS [ARGS...]: one stage, its learning rate decaying over its steps
-    local stage=$1 n
+    local stage=$1 n heard=("${augment[@]}")
     n=$(stage_steps "$stage" "$2")
     shift 2
+    if [ "$stage" = vq ]; then heard=(); fi  # the VQ-VAE hears no audio: nothing to augment
     "$bin/convodrive" train a2p --stage "$stage" --corpus "$corpus" --preset small --seed 0 --no-progress \
-        --steps "$n" --set "decay_steps=$n" --set "warmup_steps=$(steps 100)" --set val_every=$((n / 4 + 1)) --out "$runs/$stage" "$@"
+        --steps "$n" --set "decay_steps=$n" --set "warmup_steps=$(steps 100)" --set val_every=$((n / 4 + 1)) --out "$runs/$stage" "${heard[@]}" "$@"
 }
 
 train_all() { # the face and body sides at once, then both students distilled
@@ -68,7 +71,7 @@ train_all() { # the face and body sides at once, then both students distilled
     n=$(stage_steps distill 300)
     distill=("a2p" --stage distill --corpus "$corpus" --preset small --seed 0 --no-progress --steps "$n"
         --set "decay_steps=$n" --set "warmup_steps=$(steps 20)" --set lr=2e-4 --set val_every=$((n / 4 + 1))
-        --out "$runs/distill" --init "$runs/face" --init "$runs/body")
+        --out "$runs/distill" --init "$runs/face" --init "$runs/body" "${augment[@]}")
     if [ "$gpu" = 1 ]; then
         "$bin/convodrive" train "${distill[@]}" >"$runs/distill.log" 2>&1
     else
@@ -76,7 +79,9 @@ train_all() { # the face and body sides at once, then both students distilled
     fi
 }
 
-[ -f "$corpus/manifest.json" ] || "$bin/convodrive" corpus make --hours 2 --out "$corpus" --seed 0
+scripts/train_corpus.sh "$corpus"
+augment=()  # REAL_VOICES=1 (scripts/train_corpus.sh): both channels augmented, bleed included
+if [ "${REAL_VOICES:-0}" = 1 ]; then augment=(--set augment=all); fi
 [ "${SHIP_ONLY:-0}" = 1 ] || train_all
 if [ "${TRAIN_ONLY:-0}" = 1 ]; then echo "train_a2p: trained in $runs (TRAIN_ONLY: nothing exported)"; exit 0; fi
 trained=$(date +%s)
@@ -144,15 +149,27 @@ stages = ("lip", "face", "vq", "guide", "body", "distill")
 runs_json = {s: json.loads((runs / s / "run.json").read_text()) for s in stages}
 steps = ", ".join(f"{s} {run['train_config']['steps']}" for s, run in runs_json.items())
 where = ", ".join(f"{s} {run['device']} (torch {run['torch']})" for s, run in runs_json.items())
-env = "".join(f"{k}={v} " for k, v in sorted(os.environ.items()) if k in ("SCALE", "SHIP_ONLY", "SAMPLES", "MAX_CONVERSATIONS") or k.startswith("STEPS_"))
+env = "".join(f"{k}={v} " for k, v in sorted(os.environ.items()) if k in ("SCALE", "SHIP_ONLY", "SAMPLES", "MAX_CONVERSATIONS", "REAL_VOICES", "VOICE_HOURS", "HOURS") or k.startswith("STEPS_"))
+manifest = json.loads((Path(corpus) / "manifest.json").read_text())
+recorded = [x for x in manifest.get("source", {}).get("sources", []) if x.get("name") != "espeak-ng"]
+made_with = ", then with `REAL_VOICES=1`: real voices paired in, training augmented (`--set augment=all`)" if recorded else ""
+heard = "".join(f" and {x['name']} ({x['hours']} h)" for x in recorded)
+licence = """Trained only on data this project made (espeak-ng speech, procedural motion): no motion or audio of
+the audio2photoreal data or any other third-party corpus, so none of their non-commercial terms
+apply. The weights are under the licence of convodrive itself.""" if not recorded else (
+    "Trained on data this project made (espeak-ng speech, procedural motion) and on recorded voices: "
+    + "; ".join(f"{x['name']}, {x['licence']}, {x['hours']} h" for x in recorded)
+    + ". No motion or audio of SHOW, BEAT2 or the audio2photoreal data. The weights are under the licence of convodrive"
+    " itself; the voices' licences allow commercial use of what is derived, with attribution (given here)."
+)
 card = f"""
 ## How these weights were made
 
 - command: `{env}scripts/train_a2p.sh {Path(corpus).name} {runs.name}` at commit `{commit}`
   (stages {steps} steps, `small` preset, seed 0)
 - trained on (stage by stage): {where}
-- corpus: made by `convodrive corpus make --hours 2 --seed 0` (speech by espeak-ng, motion by convodrive's
-  `procedural` generator); its test split scores the model below
+- corpus: made by `scripts/train_corpus.sh` (`convodrive corpus make --hours {manifest['source'].get('hours')} --seed 0`{made_with}; speech by
+  espeak-ng{heard}, motion by convodrive's `procedural` generator); its test split scores the model below
 - wall time: {"trained before (SHIP_ONLY), " if os.environ.get("SHIP_ONLY") == "1" else f"{(trained - started) / 60:.0f} min to train, "}{(time.time() - started) / 60:.0f} min in all, on
   {os.cpu_count()} CPU cores ({platform.machine()}), load average at the end {os.getloadavg()[0]:.1f}
 - shipped: the {chosen} export, {size / 1e6:.1f} MB ({', '.join(f'{e} {sizes[e] / 1e6:.1f} MB' for e in EXPORTS)});
@@ -173,9 +190,7 @@ export, `-int8` and `-mixed` the others.
 
 ## Licence
 
-Trained only on data this project made (espeak-ng speech, procedural motion): no motion or audio of
-the audio2photoreal data or any other third-party corpus, so none of their non-commercial terms
-apply. The weights are under the licence of convodrive itself.
+{licence}
 """
 with open(tmp / "MODEL_CARD.md", "a", encoding="utf-8") as f:
     f.write(card)

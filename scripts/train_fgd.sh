@@ -11,7 +11,7 @@ cd "$(dirname "$0")/.."
 corpus=${1:-corpus2h}
 run=${2:-runs/fgd-small}
 bin=.venv/bin
-[ -f "$corpus/manifest.json" ] || "$bin/convodrive" corpus make --hours 2 --out "$corpus" --seed 0
+scripts/train_corpus.sh "$corpus"
 "$bin/convodrive" train fgd --corpus "$corpus" --preset small --seed 0 --out "$run"
 "$bin/convodrive" export "$run" --out convodrive/eval/fgd_model
 echo "train_fgd: wrote convodrive/eval/fgd_model (see its MODEL_CARD.md)"

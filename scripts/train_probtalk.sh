@@ -17,6 +17,8 @@
 # run resumes each stage where it stopped.
 # SHIP_ONLY=1 trains nothing (RUN_DIR's stages are done): it exports, compares and ships;
 # TRAIN_ONLY=1 stops after training (train on a GPU machine, ship where the corpus's audio is).
+# REAL_VOICES=1 (see scripts/train_corpus.sh) mixes real recorded voices into the corpus and augments
+# every stage that hears audio (--set augment=all); the card then lists the voices and their licences.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 corpus=${1:-corpus2h}
@@ -25,14 +27,17 @@ threads=${THREADS:-$(nproc)}
 bin=.venv/bin
 model=convodrive/generators/probtalk/model
 started=$(date +%s)
-[ -f "$corpus/manifest.json" ] || "$bin/convodrive" corpus make --hours 2 --out "$corpus" --seed 0
+scripts/train_corpus.sh "$corpus"
+augment=()  # REAL_VOICES=1 (scripts/train_corpus.sh): both channels augmented, bleed included
+if [ "${REAL_VOICES:-0}" = 1 ]; then augment=(--set augment=all); fi
 
 # Each stage: its steps, the learning rate decaying over them (the preset's warm-up is 20 steps).
 train() {
-    local stage=$1 steps=$2
+    local stage=$1 steps=$2 heard=("${augment[@]}")
     shift 2
+    if [ "$stage" = vq ]; then heard=(); fi  # the PQ-VAE hears no audio: nothing to augment
     "$bin/convodrive" train probtalk --corpus "$corpus" --preset small --seed 0 --threads "$threads" \
-        --stage "$stage" --steps "$steps" --set "decay_steps=$((steps - 20))" --out "$runs/$stage" "$@"
+        --stage "$stage" --steps "$steps" --set "decay_steps=$((steps - 20))" --out "$runs/$stage" "${heard[@]}" "$@"
 }
 if [ "${SHIP_ONLY:-0}" != 1 ]; then
     train vq 8000
@@ -76,15 +81,27 @@ rows = [f"| {m} | " + " | ".join(cell(r.get(c)) for c in columns) + " |" for m, 
 stages = {s: json.loads((runs / s / "run.json").read_text()) for s in ("vq", "predictor", "refiner")}
 steps = {s: run["train_config"]["steps"] for s, run in stages.items()}
 where = ", ".join(sorted({f"{run['device']} (torch {run['torch']})" for run in stages.values()}))
-env = "".join(f"{k}={v} " for k, v in sorted(os.environ.items()) if k in ("SHIP_ONLY", "THREADS"))
+env = "".join(f"{k}={v} " for k, v in sorted(os.environ.items()) if k in ("SHIP_ONLY", "THREADS", "REAL_VOICES", "VOICE_HOURS", "HOURS"))
+manifest = json.loads((Path(corpus) / "manifest.json").read_text())
+recorded = [x for x in manifest.get("source", {}).get("sources", []) if x.get("name") != "espeak-ng"]
+made_with = ", then with `REAL_VOICES=1`: real voices paired in, training augmented (`--set augment=all`)" if recorded else ""
+heard = "".join(f" and {x['name']} ({x['hours']} h)" for x in recorded)
+licence = """Trained only on data this project made (espeak-ng speech, procedural motion): no motion or audio of
+SHOW, BEAT2, the audio2photoreal data or any other third-party corpus, so none of their
+non-commercial terms apply. The weights are under the licence of convodrive itself.""" if not recorded else (
+    "Trained on data this project made (espeak-ng speech, procedural motion) and on recorded voices: "
+    + "; ".join(f"{x['name']}, {x['licence']}, {x['hours']} h" for x in recorded)
+    + ". No motion or audio of SHOW, BEAT2 or the audio2photoreal data. The weights are under the licence of convodrive"
+    " itself; the voices' licences allow commercial use of what is derived, with attribution (given here)."
+)
 card = f"""
 ## How these weights were made
 
 - command: `{env}scripts/train_probtalk.sh {Path(corpus).name} {runs.name}` at commit `{commit}`
   (stages vq {steps['vq']}, predictor {steps['predictor']}, refiner {steps['refiner']} steps, `small` preset, seed 0)
 - trained on: {where}
-- corpus: made by `convodrive corpus make --hours 2 --seed 0` (speech by espeak-ng, motion by convodrive's
-  `procedural` generator); its test split scores the model below
+- corpus: made by `scripts/train_corpus.sh` (`convodrive corpus make --hours {manifest['source'].get('hours')} --seed 0`{made_with}; speech by
+  espeak-ng{heard}, motion by convodrive's `procedural` generator); its test split scores the model below
 - wall time: {"trained before (SHIP_ONLY), " if os.environ.get("SHIP_ONLY") == "1" else f"{(trained - started) / 60:.0f} min to train, "}{(time.time() - started) / 60:.0f} min in all, on
   {os.cpu_count()} CPU cores ({platform.machine()}), load average at the end {os.getloadavg()[0]:.1f}
 - shipped: the {chosen} export ({size:.1f} MiB); int8 changes {' and '.join(f'{figure} by {100 * c:+.1f} %' for figure, c in costs.items())}
@@ -98,9 +115,7 @@ card = f"""
 
 ## Licence
 
-Trained only on data this project made (espeak-ng speech, procedural motion): no motion or audio of
-SHOW, BEAT2, the audio2photoreal data or any other third-party corpus, so none of their
-non-commercial terms apply. The weights are under the licence of convodrive itself.
+{licence}
 """
 with open(tmp / "MODEL_CARD.md", "a", encoding="utf-8") as f:
     f.write(card)

@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# The corpus the train scripts share (train_fgd.sh, train_probtalk.sh, train_a2p.sh), made unless
+# DIR already holds one: 2 hours of espeak-ng dialogues with procedural motion, seed 0.
+#
+#   scripts/train_corpus.sh DIR
+#
+# REAL_VOICES=1 also pairs real recorded voices into dialogues (VOICE_HOURS, default 0.5 h), from
+# the Debian packages scripts/real_voices.sh fetches: the CC-BY speakers only (asterisk-it,
+# asterisk-ru), never the tests' held-out ones (tests/real_voices.py: HELD_OUT). The train scripts
+# then augment both channels (--set augment=all). The manifest and the model card list each
+# source with its licence and hours. HOURS (default 2) sets the espeak-ng hours.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+corpus=${1:?usage: scripts/train_corpus.sh DIR}
+[ -f "$corpus/manifest.json" ] && exit 0
+voices=()
+if [ "${REAL_VOICES:-0}" = 1 ]; then
+    cache="${CONVODRIVE_REAL_VOICES:-${XDG_CACHE_HOME:-$HOME/.cache}/convodrive/real_voices}"
+    scripts/real_voices.sh "$cache" >/dev/null
+    voices=(--voices "$cache/voices/asterisk-it" --voices "$cache/voices/asterisk-ru" --voice-hours "${VOICE_HOURS:-0.5}")
+fi
+.venv/bin/convodrive corpus make --hours "${HOURS:-2}" "${voices[@]}" --out "$corpus" --seed 0
