@@ -192,9 +192,10 @@ def built_once(tmp_path_factory: pytest.TempPathFactory, name: str, build: Calla
     root = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
         root = root.parent  # the run's base folder; each worker's own is below it
-    folder, done = root / "shared" / name, root / "shared" / f"{name}.done"
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    with open(root / "shared" / f"{name}.lock", "w") as lock:
+    shared = root / "shared"
+    shared.mkdir(exist_ok=True)
+    folder, done = shared / name, shared / f"{name}.done"
+    with open(shared / f"{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, or the worker dies
         if not done.exists():
             shutil.rmtree(folder, ignore_errors=True)  # a worker that died half-way left it

@@ -41,13 +41,17 @@ def _copy_of_the_project(dest: Path) -> Path:
     return dest
 
 
+def _venv_that_sees(python: str, venv: Path, site: Path, *flags: str) -> None:
+    """A new venv made by ``python`` whose packages include those in ``site`` (a .pth file)."""
+    subprocess.run([python, "-m", "venv", *flags, str(venv)], check=True)
+    ours = next((venv / "lib").glob("python3*/site-packages"))
+    (ours / "shared.pth").write_text(f"{site}\n")
+
+
 def _fresh_venv(project: Path) -> None:
     """A new .venv that sees the packages this interpreter has (so that nothing is downloaded but
     the build tools), the way each worktree's venv reuses the shared one."""
-    subprocess.run([sys.executable, "-m", "venv", str(project / ".venv")], check=True)
-    site = Path(sysconfig.get_paths()["purelib"])
-    ours = next((project / ".venv" / "lib").glob("python3*/site-packages"))
-    (ours / "shared.pth").write_text(f"{site}\n")
+    _venv_that_sees(sys.executable, project / ".venv", Path(sysconfig.get_paths()["purelib"]))
 
 
 def _shared_dev_tools(project: Path) -> None:
@@ -57,11 +61,7 @@ def _shared_dev_tools(project: Path) -> None:
     reachy = REPO / ".venv-reachy"
     theirs = next((reachy / "lib").glob("python3*/site-packages"), None) if reachy.is_dir() else None
     if theirs is not None:
-        subprocess.run(
-            [str(reachy / "bin" / "python"), "-m", "venv", "--without-pip", str(project / ".venv-reachy")], check=True
-        )
-        ours = next((project / ".venv-reachy" / "lib").glob("python3*/site-packages"))
-        (ours / "shared.pth").write_text(f"{theirs}\n")
+        _venv_that_sees(str(reachy / "bin" / "python"), project / ".venv-reachy", theirs, "--without-pip")
     node_modules = REPO / "tools" / "node" / "node_modules"
     if node_modules.is_dir():
         (project / "tools" / "node").mkdir(parents=True, exist_ok=True)
