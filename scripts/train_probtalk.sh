@@ -62,6 +62,8 @@ fgd=${FGD_MODEL:-convodrive/eval/fgd_model}
 import json, os, platform, shutil, subprocess, sys, time
 from pathlib import Path
 
+from convodrive.training.model_card import train_script_corpus
+
 runs, model, corpus, started, trained = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3], *map(int, sys.argv[4:6])
 table = json.loads((runs / "compare" / "compare.json").read_text())
 results = table["results"]
@@ -82,26 +84,16 @@ stages = {s: json.loads((runs / s / "run.json").read_text()) for s in ("vq", "pr
 steps = {s: run["train_config"]["steps"] for s, run in stages.items()}
 where = ", ".join(sorted({f"{run['device']} (torch {run['torch']})" for run in stages.values()}))
 env = "".join(f"{k}={v} " for k, v in sorted(os.environ.items()) if k in ("SHIP_ONLY", "THREADS", "REAL_VOICES", "VOICE_HOURS", "HOURS"))
-manifest = json.loads((Path(corpus) / "manifest.json").read_text())
-recorded = [x for x in manifest.get("source", {}).get("sources", []) if x.get("name") != "espeak-ng"]
-made_with = ", then with `REAL_VOICES=1`: real voices paired in, training augmented (`--set augment=all`)" if recorded else ""
-heard = "".join(f" and {x['name']} ({x['hours']} h)" for x in recorded)
-licence = """Trained only on data this project made (espeak-ng speech, procedural motion): no motion or audio of
+made, licence = train_script_corpus(Path(corpus), """Trained only on data this project made (espeak-ng speech, procedural motion): no motion or audio of
 SHOW, BEAT2, the audio2photoreal data or any other third-party corpus, so none of their
-non-commercial terms apply. The weights are under the licence of convodrive itself.""" if not recorded else (
-    "Trained on data this project made (espeak-ng speech, procedural motion) and on recorded voices: "
-    + "; ".join(f"{x['name']}, {x['licence']}, {x['hours']} h" for x in recorded)
-    + ". No motion or audio of SHOW, BEAT2 or the audio2photoreal data. The weights are under the licence of convodrive"
-    " itself; the voices' licences allow commercial use of what is derived, with attribution (given here)."
-)
+non-commercial terms apply. The weights are under the licence of convodrive itself.""")
 card = f"""
 ## How these weights were made
 
 - command: `{env}scripts/train_probtalk.sh {Path(corpus).name} {runs.name}` at commit `{commit}`
   (stages vq {steps['vq']}, predictor {steps['predictor']}, refiner {steps['refiner']} steps, `small` preset, seed 0)
 - trained on: {where}
-- corpus: made by `scripts/train_corpus.sh` (`convodrive corpus make --hours {manifest['source'].get('hours')} --seed 0`{made_with}; speech by
-  espeak-ng{heard}, motion by convodrive's `procedural` generator); its test split scores the model below
+- corpus: {made}
 - wall time: {"trained before (SHIP_ONLY), " if os.environ.get("SHIP_ONLY") == "1" else f"{(trained - started) / 60:.0f} min to train, "}{(time.time() - started) / 60:.0f} min in all, on
   {os.cpu_count()} CPU cores ({platform.machine()}), load average at the end {os.getloadavg()[0]:.1f}
 - shipped: the {chosen} export ({size:.1f} MiB); int8 changes {' and '.join(f'{figure} by {100 * c:+.1f} %' for figure, c in costs.items())}

@@ -4,6 +4,8 @@ and a corpus's source, never a folder of the machine that trained them."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
 from typing import Any
 
 from convodrive.training.recipe import DataSpec, Recipe
@@ -19,6 +21,35 @@ def _train_command(meta: dict[str, Any], corpus: dict[str, Any]) -> str:
     return " ".join(parts)
 
 
+def _recorded(source: dict[str, Any]) -> list[dict[str, Any]]:
+    """A made corpus's sources of recorded speech (all but espeak-ng), each with licence and hours."""
+    return [s for s in source.get("sources", ()) if s.get("name") != "espeak-ng"]
+
+
+def train_script_corpus(corpus: Path, own_licence: str) -> tuple[str, str]:
+    """What a train script's card says of its corpus (``scripts/train_corpus.sh``): how it was made
+    and, with ``REAL_VOICES=1``, the recorded voices it heard; and the licence paragraph,
+    ``own_licence`` when it heard none, else one that names each voice's licence (attribution)."""
+    source = json.loads((corpus / "manifest.json").read_text()).get("source", {})
+    recorded = _recorded(source)
+    made_with = ", then with `REAL_VOICES=1`: real voices paired in, training augmented (`--set augment=all`)"
+    heard = "".join(f" and {s['name']} ({s['hours']} h)" for s in recorded)
+    made = (
+        f"made by `scripts/train_corpus.sh` (`convodrive corpus make --hours {source.get('hours')} --seed 0`"
+        f"{made_with if recorded else ''}; speech by espeak-ng{heard}, motion by convodrive's `procedural` "
+        "generator); its test split scores the model below"
+    )
+    if not recorded:
+        return made, own_licence
+    licence = (
+        "Trained on data this project made (espeak-ng speech, procedural motion) and on recorded voices: "
+        + "; ".join(f"{s['name']}, {s['licence']}, {s['hours']} h" for s in recorded)
+        + ". No motion or audio of SHOW, BEAT2 or the audio2photoreal data. The weights are under the licence of"
+        " convodrive itself; the voices' licences allow commercial use of what is derived, with attribution (given here)."
+    )
+    return made, licence
+
+
 def _corpus_text(corpus: dict[str, Any]) -> str:
     """What the corpus is and how to make it again (its manifest's source), never where it lay on
     the machine that trained: a card travels with the weights."""
@@ -27,7 +58,7 @@ def _corpus_text(corpus: dict[str, Any]) -> str:
     source = corpus.get("source") or {}
     facts = f"{corpus.get('name', '?')}, {corpus.get('hours', '?')} h, {corpus.get('conversations', '?')} conversations"
     if source.get("kind") == "made":
-        recorded = [s for s in source.get("sources", ()) if s.get("name") != "espeak-ng"]
+        recorded = _recorded(source)
         flags = "".join(f" --voices {s['name']}" for s in recorded)  # folder names: how the user named them
         flags += f" --voice-hours {source['voice_hours']}" if recorded and source.get("voice_hours") else ""
         how = f"made by `convodrive corpus make --hours {source.get('hours')} --seed {source.get('seed')} --takes {source.get('takes')}{flags}`"

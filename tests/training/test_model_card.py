@@ -102,3 +102,26 @@ def test_export_writes_the_command_and_the_corpus_recipe_not_its_folder(source: 
 @pytest.mark.parametrize("card", _shipped_cards(), ids=lambda p: str(p.parent.relative_to(REPO)))
 def test_no_shipped_model_json_names_a_folder_of_the_machine(card: Path) -> None:
     assert machine_paths((card.parent / "model.json").read_text(encoding="utf-8")) == []
+
+
+def test_a_train_scripts_card_names_the_recorded_voices_and_their_licences(tmp_path: Path) -> None:
+    """scripts/train_{probtalk,a2p}.sh: espeak-ng only keeps the script's own licence paragraph;
+    with REAL_VOICES=1 the corpus line and the licence name each voice, its licence and hours."""
+    import json
+
+    from convodrive.training.model_card import train_script_corpus
+
+    espeak = {"name": "espeak-ng", "licence": "no third-party data", "hours": 2.0}
+    voice = {"name": "asterisk-it", "licence": "CC-BY-3.0 (Carlo Flora)", "hours": 0.5}
+    for sources in ([espeak], [espeak, voice]):
+        (tmp_path / "manifest.json").write_text(
+            json.dumps({"source": {"kind": "made", "hours": 2, "sources": sources}})
+        )
+        made, licence = train_script_corpus(tmp_path, "OWN")
+        assert made.startswith("made by `scripts/train_corpus.sh` (`convodrive corpus make --hours 2 --seed 0`")
+        assert machine_paths(made + licence) == []
+        if len(sources) == 1:
+            assert "REAL_VOICES" not in made and "asterisk" not in made and licence == "OWN"
+        else:
+            assert "REAL_VOICES=1" in made and "espeak-ng and asterisk-it (0.5 h)" in made
+            assert "asterisk-it, CC-BY-3.0 (Carlo Flora), 0.5 h" in licence and "attribution" in licence
