@@ -1,30 +1,39 @@
-"""Audio augmentation for training: what real microphones, rooms and lines do to a dialogue.
+"""Augmentation for training: what real microphones, rooms and lines do to a dialogue, applied to
+its log-mel features.
 
-A training window's raw two-channel audio (self, partner) is changed before its features are
-computed, so a model that learned from clean espeak-ng or studio speech also meets levels,
-voices, telephone bands, rooms, noise and the other person's voice in its microphone (bleed).
+A model that learned from clean espeak-ng or studio speech must also meet other levels and voices,
+telephone bands, rooms, noise and the other person's voice in its microphone (bleed). Each kind
+works on a training window's (frames, 2, bands) log-mel as band energies, where these effects are
+sums and products: voices and noise from one room add in energy (they are uncorrelated), a line
+or a level multiplies each band, a room smears each band's energy forward in time, and a pitch or
+speed change moves the energy along the frequency axis. That costs well under a millisecond a
+window, where changing the raw audio and computing its features again took about 0.1 s: sixteen
+windows a step made each training step several times slower than the network's own work.
+``tests/audio/test_augment.py`` checks each kind against the same change made to the audio.
+
 Every kind is drawn from one generator seeded by ``(seed, step, example)``, so a run is the same
-whatever the number of workers, and a resumed run continues exactly.
-
-The motion frames stay where they are: ``speed`` is kept within ±3 % and anchored at the
-window's middle, so no sample moves by more than 1.5 % of the window (30 ms in 2 s, a frame).
+whatever the number of workers, and a resumed run continues exactly. The motion frames stay where
+they are: ``speed`` is kept within ±3 % and anchored at the window's middle, so no frame moves by
+more than 1.5 % of the window (a frame in 2 s).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any
 
 import numpy as np
-from scipy.signal import butter, fftconvolve, istft, resample_poly, sosfilt, stft
+from scipy.signal import butter, sosfreqz
 
+from convodrive.audio.logmel import DEFAULT_SPEC, MelSpec, band_average, band_centres, log_mel
 from convodrive.audio.source import ANALYSIS_RATE
-from convodrive.audio.synth import add_bleed, room_response
 
 KINDS = ("speed", "pitch", "reverb", "bleed", "level", "telephone", "noise")
 """In the order they apply: the voice, the room, the microphone, the line, the noise floor."""
 BLEED_DB = (-20.0, -6.0)
 TELEPHONE_HZ = (300.0, 3400.0)
+FPS = 30
 
 
 def parse_kinds(text: str) -> tuple[str, ...]:
@@ -38,69 +47,95 @@ def parse_kinds(text: str) -> tuple[str, ...]:
     return tuple(k for k in KINDS if k in names)
 
 
-def level(x: np.ndarray, db: float) -> np.ndarray:
-    return x * np.float32(10 ** (db / 20))
+# ----------------------------------------------------------------- each kind, on band energies
+# ``power``: (frames, bands) energies of one channel, or (frames, channels, bands).
+def level(power: np.ndarray, db: float) -> np.ndarray:
+    return power * 10 ** (db / 10)
 
 
-def speed(stereo: np.ndarray, factor: float) -> np.ndarray:
-    """Both channels played ``factor`` times faster (pitch with it, as tape), the same length,
-    anchored at the middle."""
-    n = len(stereo)
-    up = 200
-    down = int(round(up * factor))
-    fast = resample_poly(stereo, up, down, axis=0).astype(np.float32)
-    middle, half = len(fast) // 2, n // 2
-    out = np.zeros_like(stereo)
-    lo = middle - half
-    take = fast[max(lo, 0) : max(lo, 0) + n - max(-lo, 0)]
-    out[max(-lo, 0) : max(-lo, 0) + len(take)] = take
+def shift_frequency(power: np.ndarray, ratio: float, spec: MelSpec = DEFAULT_SPEC) -> np.ndarray:
+    """Every band's energy moved up by ``ratio`` in frequency (harmonics and formants alike, as
+    tape or a phase vocoder without formant correction do); interpolated in log energy."""
+    centres = _centres(spec)
+    source = np.interp(centres / ratio, centres, np.arange(len(centres)))
+    lo = np.floor(source).astype(int)
+    hi = np.minimum(lo + 1, len(centres) - 1)
+    frac = source - lo
+    logs = np.log(power)
+    return np.exp(logs[..., lo] * (1 - frac) + logs[..., hi] * frac)
+
+
+def warp_time(power: np.ndarray, factor: float) -> np.ndarray:
+    """The frames played ``factor`` times faster, anchored at the middle frame (the edges repeat)."""
+    frames = len(power)
+    middle = (frames - 1) / 2
+    source = np.clip(middle + (np.arange(frames) - middle) * factor, 0, frames - 1)
+    lo = np.floor(source).astype(int)
+    hi = np.minimum(lo + 1, frames - 1)
+    frac = (source - lo).reshape(-1, *([1] * (power.ndim - 1)))
+    logs = np.log(power)
+    return np.exp(logs[lo] * (1 - frac) + logs[hi] * frac)
+
+
+def speed(power: np.ndarray, factor: float, spec: MelSpec = DEFAULT_SPEC) -> np.ndarray:
+    """As tape played ``factor`` times faster: shorter in time and higher in pitch."""
+    return shift_frequency(warp_time(power, factor), factor, spec)
+
+
+def room_kernel(rt60: float, tail_db: float) -> np.ndarray:
+    """Energy a frame leaves in the frames after it in a room: the direct sound, then a tail
+    ``tail_db`` below it decaying by 60 dB in ``rt60`` seconds; unit sum (``synth.room_response``
+    at the frame rate)."""
+    frames = np.arange(int(np.ceil(rt60 * FPS)) + 1)
+    tail = np.exp(-np.log(1e6) * frames / (rt60 * FPS))
+    kernel = tail / tail.sum() * 10 ** (tail_db / 10)
+    kernel[0] += 1.0
+    return np.asarray(kernel / kernel.sum())
+
+
+def reverb(power: np.ndarray, rt60: float, tail_db: float) -> np.ndarray:
+    """Each frame plus the energy the frames before it left (the window's first frames get none)."""
+    out = np.zeros_like(power)
+    for lag, weight in enumerate(room_kernel(rt60, tail_db)[: len(power)]):
+        out[lag:] += weight * power[: len(power) - lag]
     return out
 
 
-def pitch(x: np.ndarray, semitones: float) -> np.ndarray:
-    """One channel's voice ``semitones`` higher at the same timing: each short-time spectrum's bins
-    move up by the ratio, and each bin's phase advances at its new frequency (a phase vocoder)."""
-    ratio = 2 ** (semitones / 12)
-    size, hop = 512, 128
-    _, _, spec = stft(x, nperseg=size, noverlap=size - hop)
-    bins = np.arange(spec.shape[0])
-    omega = (2 * np.pi * hop / size) * bins[:, None]
-    angle = np.angle(spec)
-    step = np.diff(angle, axis=1, prepend=angle[:, :1]) - omega
-    freq = omega + (step + np.pi) % (2 * np.pi) - np.pi  # each bin's true phase advance per hop
-    src = bins / ratio
-    inside = (src <= bins[-1])[:, None]  # lowering the pitch leaves the top bins empty
-    lo = np.minimum(np.floor(src).astype(int), len(bins) - 1)
-    frac = (src - lo)[:, None]
-    hi = np.minimum(lo + 1, len(bins) - 1)
-
-    def moved(a: np.ndarray) -> np.ndarray:
-        return a[lo] * (1 - frac) + a[hi] * frac
-
-    advance = moved(freq) * ratio
-    advance[:, 0] = angle[np.rint(src).astype(int).clip(0, len(bins) - 1), 0]  # start from the source's phases
-    phase = np.cumsum(advance, axis=1)
-    _, y = istft(moved(np.abs(spec)) * inside * np.exp(1j * phase), nperseg=size, noverlap=size - hop)
-    out = np.zeros_like(x)
-    out[: min(len(x), len(y))] = y[: len(x)]
-    return out
+def bleed(power: np.ndarray, db: float) -> np.ndarray:
+    """(frames, 2, bands): each microphone also hears the other voice ``db`` below its own."""
+    gain = 10 ** (db / 10)
+    return power + gain * power[:, ::-1]
 
 
-def telephone(x: np.ndarray) -> np.ndarray:
-    """A telephone line's band: 300-3400 Hz."""
+_centres = functools.cache(band_centres)
+
+
+@functools.cache
+def telephone_gains(spec: MelSpec = DEFAULT_SPEC) -> np.ndarray:
+    """(bands,) a telephone line's energy gain per band (an 8th-order Butterworth band-pass)."""
     sos = butter(8, TELEPHONE_HZ, btype="bandpass", fs=ANALYSIS_RATE, output="sos")
-    return sosfilt(sos, x).astype(np.float32)
+    _, response = sosfreqz(sos, worN=spec.n_fft // 2 + 1, fs=ANALYSIS_RATE)
+    return band_average(spec, np.abs(response) ** 2)
 
 
-def reverb(x: np.ndarray, rt60: float, tail_db: float, seed: int) -> np.ndarray:
-    """The voice in a room (``synth.room_response`` with no delay): the same level, a longer tail."""
-    return fftconvolve(x, room_response(0.0, rt60, tail_db, ANALYSIS_RATE, seed))[: len(x)].astype(np.float32)
+@functools.cache
+def white_noise_frames(spec: MelSpec = DEFAULT_SPEC) -> np.ndarray:
+    """(frames, bands) band energies of unit-variance white noise, frame by frame (drawn from,
+    so the added noise fluctuates as real noise does)."""
+    noise = np.random.default_rng(0).standard_normal(4 * ANALYSIS_RATE)
+    return np.exp(log_mel(noise, None, spec)[:, 0].astype(np.float64))
 
 
-def noise(x: np.ndarray, rms: float, rng: np.random.Generator) -> np.ndarray:
-    return x + rng.normal(0.0, rms, len(x)).astype(np.float32)
+def noise(power: np.ndarray, snr_db: float, rng: np.random.Generator, spec: MelSpec = DEFAULT_SPEC) -> np.ndarray:
+    """(frames, channels, bands) plus white noise ``snr_db`` below the louder channel's mean energy."""
+    table = white_noise_frames(spec)
+    loud = power.sum(axis=-1).mean(axis=0).max()
+    variance = loud / table.mean(axis=0).sum() * 10 ** (-snr_db / 10)
+    rows = rng.integers(len(table), size=power.shape[:-1])
+    return power + variance * table[rows]
 
 
+# ------------------------------------------------------------------------------ the augmentation
 @dataclasses.dataclass(frozen=True)
 class Augment:
     """Which kinds apply, each with chance ``probability`` per window."""
@@ -108,57 +143,58 @@ class Augment:
     kinds: tuple[str, ...]
     probability: float = 0.5
 
-    def __call__(self, stereo: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, dict[str, Any]]:
-        """(n, 2) float32 audio changed, and what was done (kind: its parameters)."""
-        x = np.array(stereo, np.float32)
+    def __call__(
+        self, mel: np.ndarray, rng: np.random.Generator, spec: MelSpec = DEFAULT_SPEC
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """(frames, 2, bands) log-mel changed (float32), and what was done (kind: its parameters)."""
+        power = np.exp(np.asarray(mel, np.float64))
         done: dict[str, Any] = {}
         for kind in KINDS:
             if kind in self.kinds and rng.random() < self.probability:
-                x, done[kind] = _APPLY[kind](x, rng)
-        return np.clip(x, -1.0, 1.0), done
+                power, done[kind] = _APPLY[kind](power, rng, spec)
+        return np.log(np.maximum(power, spec.floor)).astype(np.float32), done
 
 
-def _speed(x: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, Any]:
-    factor = float(rng.uniform(0.97, 1.03))
-    return speed(x, factor), round(factor, 4)
+def _speed(power: np.ndarray, rng: np.random.Generator, spec: MelSpec) -> tuple[np.ndarray, Any]:
+    factor = round(float(rng.uniform(0.97, 1.03)), 4)
+    return speed(power, factor, spec), factor
 
 
-def _per_channel(x: np.ndarray, rng: np.random.Generator, draw: Any, apply: Any) -> tuple[np.ndarray, Any]:
-    params = [draw(rng) for _ in range(x.shape[1])]
-    return np.stack([apply(x[:, c], p) for c, p in enumerate(params)], axis=1), params
+def _per_channel(power: np.ndarray, rng: np.random.Generator, draw: Any, apply: Any) -> tuple[np.ndarray, Any]:
+    params = [draw(rng) for _ in range(power.shape[1])]
+    return np.stack([apply(power[:, c], p) for c, p in enumerate(params)], axis=1), params
 
 
-def _pitch(x: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, Any]:
-    return _per_channel(x, rng, lambda r: round(float(r.uniform(-3.0, 3.0)), 3), pitch)
+def _pitch(power: np.ndarray, rng: np.random.Generator, spec: MelSpec) -> tuple[np.ndarray, Any]:
+    def draw(r: np.random.Generator) -> float:
+        return round(float(r.uniform(-3.0, 3.0)), 3)
+
+    return _per_channel(power, rng, draw, lambda p, semitones: shift_frequency(p, 2 ** (semitones / 12), spec))
 
 
-def _reverb(x: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, Any]:
-    def draw(r: np.random.Generator) -> tuple[float, float, int]:
-        return round(float(r.uniform(0.15, 0.7)), 3), round(float(r.uniform(-12.0, -2.0)), 2), int(r.integers(2**31))
+def _reverb(power: np.ndarray, rng: np.random.Generator, spec: MelSpec) -> tuple[np.ndarray, Any]:
+    def draw(r: np.random.Generator) -> tuple[float, float]:
+        return round(float(r.uniform(0.15, 0.7)), 3), round(float(r.uniform(-12.0, -2.0)), 2)
 
-    return _per_channel(x, rng, draw, lambda c, p: reverb(c, *p))
-
-
-def _bleed(x: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, Any]:
-    db, delay, seed = float(rng.uniform(*BLEED_DB)), float(rng.uniform(1.0, 8.0)), int(rng.integers(2**31))
-    a, b = add_bleed(x[:, 0], x[:, 1], db, delay, seed)
-    return np.stack([a, b], axis=1), {"db": round(db, 2), "delay_ms": round(delay, 2)}
+    return _per_channel(power, rng, draw, lambda p, room: reverb(p, *room))
 
 
-def _level(x: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, Any]:
-    return _per_channel(x, rng, lambda r: round(float(r.uniform(-12.0, 6.0)), 2), level)
+def _bleed(power: np.ndarray, rng: np.random.Generator, spec: MelSpec) -> tuple[np.ndarray, Any]:
+    db = round(float(rng.uniform(*BLEED_DB)), 2)
+    return bleed(power, db), {"db": db}
 
 
-def _telephone(x: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, Any]:
-    return np.stack([telephone(x[:, 0]), telephone(x[:, 1])], axis=1), list(TELEPHONE_HZ)
+def _level(power: np.ndarray, rng: np.random.Generator, spec: MelSpec) -> tuple[np.ndarray, Any]:
+    return _per_channel(power, rng, lambda r: round(float(r.uniform(-12.0, 6.0)), 2), level)
 
 
-def _noise(x: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, Any]:
-    """Noise 10-35 dB below the louder channel's RMS."""
-    loud = float(np.sqrt(np.mean(x.astype(np.float64) ** 2, axis=0)).max())
-    snr = float(rng.uniform(10.0, 35.0))
-    rms = max(loud, 1e-4) * 10 ** (-snr / 20)
-    return np.stack([noise(x[:, c], rms, rng) for c in range(x.shape[1])], axis=1), round(snr, 2)
+def _telephone(power: np.ndarray, rng: np.random.Generator, spec: MelSpec) -> tuple[np.ndarray, Any]:
+    return power * telephone_gains(spec), list(TELEPHONE_HZ)
+
+
+def _noise(power: np.ndarray, rng: np.random.Generator, spec: MelSpec) -> tuple[np.ndarray, Any]:
+    snr = round(float(rng.uniform(10.0, 35.0)), 2)
+    return noise(power, snr, rng, spec), snr
 
 
 _APPLY = {

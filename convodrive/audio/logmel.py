@@ -190,3 +190,17 @@ def log_mel(samples: np.ndarray, num_frames: int | None = None, spec: MelSpec = 
 def dyadic_log_mel(audio: DyadicAudio, num_frames: int | None = None, spec: MelSpec = DEFAULT_SPEC) -> np.ndarray:
     """(T, 2, bands): self on index 0, the partner on 1, frame-aligned with the motion clock."""
     return log_mel(np.stack([audio.self_voice, audio.other_voice], axis=1), num_frames or audio.num_frames, spec)
+
+
+def band_centres(spec: MelSpec = DEFAULT_SPEC) -> np.ndarray:
+    """(bands,) each band's peak frequency in Hz."""
+    edges = _mel_to_hz(np.linspace(_hz_to_mel(np.array(spec.fmin)), _hz_to_mel(np.array(spec.fmax)), spec.bands + 2))
+    return np.asarray(edges[1:-1])
+
+
+def band_average(spec: MelSpec, power_of_hz: np.ndarray) -> np.ndarray:
+    """(bands,) a power response given at the FFT's ``n_fft // 2 + 1`` bin frequencies, averaged
+    over each band's triangle: what the band's energy is multiplied by for a signal flat in the band."""
+    filters = _Filterbank(spec)
+    flat = filters(np.ones((1, len(power_of_hz))))[0]
+    return np.asarray(filters(np.asarray(power_of_hz, np.float64)[None])[0] / flat)

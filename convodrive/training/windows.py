@@ -15,9 +15,7 @@ import torch
 
 from convodrive import FPS
 from convodrive.audio.augment import Augment
-from convodrive.audio.logmel import log_mel
-from convodrive.audio.source import ANALYSIS_RATE
-from convodrive.corpus import Corpus
+from convodrive.corpus import Corpus, Window
 from convodrive.motion import representation as rep
 from convodrive.motion.representation import FeatureStats
 from convodrive.plumbing.errors import UserError
@@ -69,7 +67,7 @@ class CorpusWindows(Examples):
             else:
                 step, seed, augment = augmenting
                 rng = np.random.default_rng([seed, step, int(example)])
-                audio.append(self.augmented_mel(conv.id, int(start), augment, rng))
+                audio.append(self.augmented_mel(w, augment, rng))
             speaker.append(self.corpus.speaker_index(conv.speaker))
         return {
             "motion": torch.from_numpy(np.stack(motion)),
@@ -78,14 +76,11 @@ class CorpusWindows(Examples):
             "speaker": torch.tensor(speaker, dtype=torch.long),
         }
 
-    def augmented_mel(self, conversation: str, start: int, augment: Augment, rng: np.random.Generator) -> np.ndarray:
-        """(window, 2, bands) log-mel of a window's raw audio after ``augment``; read with the
-        features' look-ahead, so its frames see what the stored ones saw."""
-        conv = self.corpus.conversation(conversation)
-        extra = int(np.ceil(self.corpus.mel_spec.lookahead_samples / (ANALYSIS_RATE / FPS))) + 1
-        samples = self.corpus.samples(conv.id, start, min(self.window + extra, conv.frames - start))
-        changed, _ = augment(samples, rng)
-        return log_mel(changed, None, self.corpus.mel_spec)[: self.window]
+    def augmented_mel(self, window: Window, augment: Augment, rng: np.random.Generator) -> np.ndarray:
+        """(window, 2, bands) log-mel of a window as ``augment`` changes it (in the feature domain:
+        ``audio.augment`` says why)."""
+        changed, _ = augment(window.mel, rng, self.corpus.mel_spec)
+        return changed
 
 
 def window_data(
