@@ -1,0 +1,103 @@
+"""Every generator on real two-voice dialogues of speakers no shipped model heard (issue 32's first
+must-show), as JSON.
+
+N one-minute dialogues of the held-out real speakers (tests/real_voices.py), with their true turns,
+clean and with each voice leaking into the other's microphone at ``--bleed-db`` (``add_bleed``).
+Per generator and dialogue: jaw-envelope correlation, the jaw shut where self is silent and where
+only the partner speaks, and head speed talking over listening; then the worst dialogue against
+the targets. Any output gate stays off (the generators' defaults have none). ``--model NAME=DIR``
+runs a generator from another folder, under its own name (``new=probtalk:DIR``), to set a
+retrained model beside the shipped one. No timings: the load average is printed for completeness.
+
+Usage: .venv/bin/python bench/bench_real_voices.py [--real N] [--generators procedural,probtalk,a2p]
+       [--model NAME=GENERATOR:DIR ...] [--bleed-db DB] [--seed S]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from bench.bench_listening import real_sets  # noqa: E402
+from convodrive.audio.source import DyadicAudio  # noqa: E402
+from convodrive.audio.synth import add_bleed  # noqa: E402
+from convodrive.eval.behaviour import behaviour_figures  # noqa: E402
+from convodrive.plugins import GENERATOR_GROUP, load_plugin  # noqa: E402
+
+TARGETS = {"jaw_r": 0.7, "shut_self_silent": 0.95, "shut_only_partner": 0.97, "head_talk_listen": 2.0}
+"""Each figure's lowest acceptable value, clean and with bleed alike."""
+
+
+def figures(generator: Any, audio: DyadicAudio, truth: Any, seed: int) -> dict[str, float]:
+    clip = generator.generate(audio, seed=seed)[0]
+    f = behaviour_figures(clip, audio, truth)
+    return {
+        "jaw_r": round(f["lip_sync"]["pearson_jaw_vs_self_envelope"], 3),
+        "shut_self_silent": round(f["lip_sync"]["jaw_closed_when_self_silent"], 3),
+        "shut_only_partner": round(f["lip_sync"]["jaw_closed_when_only_partner_speaks"], 3),
+        "head_talk_listen": round(f["head"]["speaking_to_listening_ratio"], 2),
+    }
+
+
+def worst(per_dialogue: dict[str, dict[str, dict[str, float]]]) -> dict[str, dict[str, Any]]:
+    """Per condition (clean, bleed): each figure's lowest over the dialogues, and whether it meets its target."""
+    out: dict[str, dict[str, Any]] = {}
+    for condition in ("clean", "bleed"):
+        lowest = {k: min(d[condition][k] for d in per_dialogue.values()) for k in TARGETS}
+        out[condition] = {"lowest": lowest, "met": {k: lowest[k] >= bound for k, bound in TARGETS.items()}}
+    return out
+
+
+def named_generators(names: str, models: list[str]) -> dict[str, Any]:
+    """``procedural,probtalk,a2p`` with their defaults, plus each ``NAME=GENERATOR:DIR``."""
+    made = {name: load_plugin(GENERATOR_GROUP, name)({}) for name in names.split(",") if name}
+    for spec in models:
+        name, _, rest = spec.partition("=")
+        kind, _, folder = rest.partition(":")
+        if not (name and kind and folder):
+            raise SystemExit(f"bench_real_voices: --model {spec}: expected NAME=GENERATOR:DIR")
+        made[name] = load_plugin(GENERATOR_GROUP, kind)({"model": folder})
+    return made
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--real", type=int, default=4, metavar="N", help="one-minute dialogues (default 4)")
+    parser.add_argument("--generators", default="procedural,probtalk,a2p")
+    parser.add_argument("--model", action="append", default=[], metavar="NAME=GENERATOR:DIR")
+    parser.add_argument("--bleed-db", type=float, default=-12.0)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    generators = named_generators(args.generators, args.model)
+    sets = real_sets(args.real)
+    results: dict[str, Any] = {}
+    for name, generator in generators.items():
+        per_dialogue = {}
+        for label, (audio, truth) in sets.items():
+            bled = DyadicAudio(*add_bleed(audio.self_voice, audio.other_voice, args.bleed_db))
+            per_dialogue[label] = {
+                "clean": figures(generator, audio, truth, args.seed),
+                "bleed": figures(generator, bled, truth, args.seed),
+            }
+        results[name] = {"dialogues": per_dialogue, "worst": worst(per_dialogue)}
+    report = {
+        "dialogues": f"{args.real} real, one minute each, held-out speakers",
+        "bleed_db": args.bleed_db,
+        "seed": args.seed,
+        "targets": TARGETS,
+        "loadavg": [round(x, 2) for x in os.getloadavg()],
+        "generators": results,
+    }
+    print(json.dumps(report, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
