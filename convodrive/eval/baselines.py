@@ -102,9 +102,10 @@ def _crossfade(parts: list[MotionClip]) -> MotionClip:
     for nxt in features[1:]:
         prev = out.pop()
         body, fade = prev[:-KNN_BLEND], prev[-KNN_BLEND:]
-        weight = ((np.arange(KNN_BLEND) + 1) / (KNN_BLEND + 1))[:, None]
+        n = min(KNN_BLEND, len(nxt))  # a conversation's last segment may be shorter than the blend
+        weight = ((np.arange(n) + 1) / (KNN_BLEND + 1))[:, None]
         head = nxt.copy()
-        head[:KNN_BLEND] = (1 - weight) * fade + weight * nxt[:KNN_BLEND]
+        head[:n] = (1 - weight) * fade[:n] + weight * nxt[:n]
         out.extend([body, head])
     base = _concat(parts, drop_last=[KNN_BLEND] * (len(parts) - 1) + [0])  # root and legs: not blended
     return rep.decode(np.concatenate(out), base=base, fps=parts[0].fps)
