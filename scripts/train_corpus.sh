@@ -12,7 +12,13 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 corpus=${1:?usage: scripts/train_corpus.sh DIR}
-[ -f "$corpus/manifest.json" ] && exit 0
+if [ -f "$corpus/manifest.json" ]; then  # made before: reused, if it is the corpus asked for
+    if [ "${REAL_VOICES:-0}" = 1 ] && ! grep -q '"asterisk-it"' "$corpus/manifest.json"; then
+        echo "train_corpus: $corpus holds a corpus made without REAL_VOICES=1; give another folder" >&2
+        exit 1
+    fi
+    exit 0
+fi
 voices=()
 if [ "${REAL_VOICES:-0}" = 1 ]; then
     cache="${CONVODRIVE_REAL_VOICES:-${XDG_CACHE_HOME:-$HOME/.cache}/convodrive/real_voices}"

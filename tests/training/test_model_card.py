@@ -3,7 +3,10 @@ never a folder of the machine that trained them."""
 
 from __future__ import annotations
 
+import json
+import os
 import re
+import subprocess
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -107,7 +110,6 @@ def test_no_shipped_model_json_names_a_folder_of_the_machine(card: Path) -> None
 def test_a_train_scripts_card_names_the_recorded_voices_and_their_licences(tmp_path: Path) -> None:
     """scripts/train_{probtalk,a2p}.sh: espeak-ng only keeps the script's own licence paragraph;
     with REAL_VOICES=1 the corpus line and the licence name each voice, its licence and hours."""
-    import json
 
     from convodrive.training.model_card import train_script_corpus
 
@@ -125,3 +127,21 @@ def test_a_train_scripts_card_names_the_recorded_voices_and_their_licences(tmp_p
         else:
             assert "REAL_VOICES=1" in made and "espeak-ng and asterisk-it (0.5 h)" in made
             assert "asterisk-it, CC-BY-3.0 (Carlo Flora), 0.5 h" in licence and "attribution" in licence
+
+
+def test_train_corpus_refuses_a_made_corpus_without_the_real_voices_asked_for(tmp_path: Path) -> None:
+    script = REPO / "scripts" / "train_corpus.sh"
+    espeak = {"name": "espeak-ng", "licence": "own", "hours": 2.0}
+    (tmp_path / "manifest.json").write_text(json.dumps({"source": {"kind": "made", "sources": [espeak]}}))
+    reused = subprocess.run([str(script), str(tmp_path)], capture_output=True, text=True, env=_env(REAL_VOICES="0"))
+    assert reused.returncode == 0 and reused.stderr == ""
+    refused = subprocess.run([str(script), str(tmp_path)], capture_output=True, text=True, env=_env(REAL_VOICES="1"))
+    assert refused.returncode == 1
+    assert (
+        refused.stderr.strip()
+        == f"train_corpus: {tmp_path} holds a corpus made without REAL_VOICES=1; give another folder"
+    )
+
+
+def _env(**extra: str) -> dict[str, str]:
+    return {**os.environ, **extra}
