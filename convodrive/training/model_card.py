@@ -32,7 +32,7 @@ def train_script_corpus(corpus: Path, own_licence: str) -> tuple[str, str]:
     ``own_licence`` when it heard none, else one that names each voice's licence (attribution)."""
     source = json.loads((corpus / "manifest.json").read_text()).get("source", {})
     recorded = _recorded(source)
-    made_with = ", then with `REAL_VOICES=1`: real voices paired in, training augmented (`--set augment=all`)"
+    made_with = ", then with `REAL_VOICES=1`: real voices paired in, training augmented (`--set augment=all --set augment_p=0.2`)"
     heard = "".join(f" and {s['name']} ({s['hours']} h)" for s in recorded)
     made = (
         f"made by `scripts/train_corpus.sh` (`convodrive corpus make --hours {source.get('hours')} --seed 0`"
