@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import platform
 import tempfile
 import threading
 import time
@@ -36,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.machine import cpu_name
 from convodrive.agents.offline import synthesize
 from convodrive.audio.source import ANALYSIS_RATE
 from convodrive.eval.sync import level_db, mouth_onsets, pair_onsets, speech_onsets
@@ -48,16 +48,6 @@ TEXTS = [
     "The train leaves at nine, and then we walk along the river.",
     "I looked it up: the museum opens at ten on Sundays, so we have time for breakfast.",
 ]
-
-
-def cpu_name() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor()
 
 
 def partner(session: LiveSession, stop: threading.Event) -> None:

@@ -20,6 +20,7 @@ import time
 import numpy as np
 
 from bench.bench_servo import stats
+from bench.machine import cpu_name
 from convodrive.backends.feetech import HEALTH_REGISTERS
 from convodrive.backends.servo import feetech_packet as fp
 from convodrive.backends.servo import feetech_table as ft
@@ -77,14 +78,6 @@ def bus_time(frames: int, return_delay_us: int) -> dict[str, object]:
         "comm_failures": failures,
         "budget_share_at_30fps": round(float(np.percentile(total_ms, 99)) / (1000 / 30), 3),
     }
-
-
-def cpu_name() -> str:
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            return next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        return platform.processor() or platform.machine()
 
 
 def main() -> None:

@@ -3,6 +3,7 @@
 Prints JSON with
 - ``batch_ms``: milliseconds to assemble one batch of each stage's windows (a2p and probtalk,
   ``--preset``), in this process: the time a GPU step waits when no worker assembles it ahead;
+  ``augmented_ms``: the same with every augmentation kind at its default chance (``audio.augment``);
 - ``steps_per_second``: a2p's ``lip`` stage trained ``--steps`` steps with ``--workers`` 0 and N
   on ``--device`` (the weights of both runs must agree exactly: ``same_weights``);
 - the machine's load average before and after (the machine may be shared: quote it).
@@ -35,11 +36,19 @@ def main() -> int:
     import torch
     from safetensors.torch import load_file
 
+    from bench.machine import cpu_name
+    from convodrive.audio.augment import KINDS, Augment
     from convodrive.training.loop import TrainRequest, train
     from convodrive.training.registry import get_preset, get_recipe
 
-    out: dict[str, object] = {"load_before": [round(x, 2) for x in os.getloadavg()], "cpus": os.cpu_count()}
+    out: dict[str, object] = {
+        "cpu": cpu_name(),
+        "cpus": os.cpu_count(),
+        "load_before": [round(x, 2) for x in os.getloadavg()],
+    }
     batch_ms: dict[str, float] = {}
+    augmented_ms: dict[str, float] = {}
+    augment = Augment(KINDS)
     for model in ("a2p", "probtalk"):
         recipe = get_recipe(model)
         _, preset = get_preset(recipe, args.preset)
@@ -52,7 +61,12 @@ def main() -> int:
             for _ in range(args.repeats):
                 windows.batch(rng.integers(0, len(windows), batch))
             batch_ms[f"{model} {stage}"] = round((time.perf_counter() - started) / args.repeats * 1e3, 1)
+            started = time.perf_counter()
+            for step in range(args.repeats):
+                windows.step_batch(rng.integers(0, len(windows), batch), step, 0, augment)
+            augmented_ms[f"{model} {stage}"] = round((time.perf_counter() - started) / args.repeats * 1e3, 1)
     out["batch_ms"] = batch_ms
+    out["augmented_ms"] = augmented_ms
 
     work = Path(tempfile.mkdtemp(prefix="bench_train_batches_"))
     rates, weights = {}, []
