@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 from scipy.signal import butter, sosfreqz
 
+from convodrive import FPS
 from convodrive.audio.logmel import DEFAULT_SPEC, MelSpec, band_average, band_centres, log_mel
 from convodrive.audio.source import ANALYSIS_RATE
 
@@ -33,7 +34,6 @@ KINDS = ("speed", "pitch", "reverb", "bleed", "level", "telephone", "noise")
 """In the order they apply: the voice, the room, the microphone, the line, the noise floor."""
 BLEED_DB = (-20.0, -6.0)
 TELEPHONE_HZ = (300.0, 3400.0)
-FPS = 30
 
 
 def parse_kinds(text: str) -> tuple[str, ...]:
@@ -58,11 +58,7 @@ def shift_frequency(power: np.ndarray, ratio: float, spec: MelSpec = DEFAULT_SPE
     tape or a phase vocoder without formant correction do); interpolated in log energy."""
     centres = _centres(spec)
     source = np.interp(centres / ratio, centres, np.arange(len(centres)))
-    lo = np.floor(source).astype(int)
-    hi = np.minimum(lo + 1, len(centres) - 1)
-    frac = source - lo
-    logs = np.log(power)
-    return np.exp(logs[..., lo] * (1 - frac) + logs[..., hi] * frac)
+    return _read_between(power, source, axis=-1)
 
 
 def warp_time(power: np.ndarray, factor: float) -> np.ndarray:
@@ -70,11 +66,19 @@ def warp_time(power: np.ndarray, factor: float) -> np.ndarray:
     frames = len(power)
     middle = (frames - 1) / 2
     source = np.clip(middle + (np.arange(frames) - middle) * factor, 0, frames - 1)
+    return _read_between(power, source, axis=0)
+
+
+def _read_between(power: np.ndarray, source: np.ndarray, axis: int) -> np.ndarray:
+    """``power`` read along ``axis`` at fractional indices ``source`` (inside the axis), linearly
+    between its neighbours in log energy."""
     lo = np.floor(source).astype(int)
-    hi = np.minimum(lo + 1, frames - 1)
-    frac = (source - lo).reshape(-1, *([1] * (power.ndim - 1)))
+    hi = np.minimum(lo + 1, power.shape[axis] - 1)
+    shape = [1] * power.ndim
+    shape[axis] = len(source)
+    frac = (source - lo).reshape(shape)
     logs = np.log(power)
-    return np.exp(logs[lo] * (1 - frac) + logs[hi] * frac)
+    return np.exp(np.take(logs, lo, axis=axis) * (1 - frac) + np.take(logs, hi, axis=axis) * frac)
 
 
 def speed(power: np.ndarray, factor: float, spec: MelSpec = DEFAULT_SPEC) -> np.ndarray:
