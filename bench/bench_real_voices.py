@@ -36,13 +36,14 @@ TARGETS = {"jaw_r": 0.7, "shut_self_silent": 0.95, "shut_only_partner": 0.97, "h
 
 
 def figures(generator: Any, audio: DyadicAudio, truth: Any, seed: int) -> dict[str, float]:
+    """The first must-show's four figures of one take (tests/eval/test_real_voices.py asserts them)."""
     clip = generator.generate(audio, seed=seed)[0]
     f = behaviour_figures(clip, audio, truth)
     return {
-        "jaw_r": round(f["lip_sync"]["pearson_jaw_vs_self_envelope"], 3),
-        "shut_self_silent": round(f["lip_sync"]["jaw_closed_when_self_silent"], 3),
-        "shut_only_partner": round(f["lip_sync"]["jaw_closed_when_only_partner_speaks"], 3),
-        "head_talk_listen": round(f["head"]["speaking_to_listening_ratio"], 2),
+        "jaw_r": f["lip_sync"]["pearson_jaw_vs_self_envelope"],
+        "shut_self_silent": f["lip_sync"]["jaw_closed_when_self_silent"],
+        "shut_only_partner": f["lip_sync"]["jaw_closed_when_only_partner_speaks"],
+        "head_talk_listen": f["head"]["speaking_to_listening_ratio"],
     }
 
 
@@ -83,8 +84,8 @@ def main() -> int:
         for label, (audio, truth) in sets.items():
             bled = DyadicAudio(*add_bleed(audio.self_voice, audio.other_voice, args.bleed_db))
             per_dialogue[label] = {
-                "clean": figures(generator, audio, truth, args.seed),
-                "bleed": figures(generator, bled, truth, args.seed),
+                condition: {k: round(v, 3) for k, v in figures(generator, heard, truth, args.seed).items()}
+                for condition, heard in (("clean", audio), ("bleed", bled))
             }
         results[name] = {"dialogues": per_dialogue, "worst": worst(per_dialogue)}
     report = {

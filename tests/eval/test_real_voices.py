@@ -12,14 +12,17 @@ import json
 
 import pytest
 
+from bench.bench_real_voices import TARGETS
+from bench.bench_real_voices import figures as real_voice_figures
 from convodrive.audio.source import DyadicAudio
 from convodrive.audio.synth import add_bleed
-from convodrive.eval.behaviour import behaviour_figures
 from tests.conftest import require
 
 pytestmark = [require("onnxruntime")]
 
-JAW_R, SHUT_SILENT, SHUT_PARTNER, HEAD_RATIO = 0.7, 0.95, 0.97, 2.0
+JAW_R, SHUT_SILENT, SHUT_PARTNER, HEAD_RATIO = (
+    TARGETS[k] for k in ("jaw_r", "shut_self_silent", "shut_only_partner", "head_talk_listen")
+)
 
 
 def _generator(name: str):  # noqa: ANN202
@@ -37,14 +40,7 @@ def _generator(name: str):  # noqa: ANN202
 
 
 def _figures(name: str, audio: DyadicAudio, truth: object) -> dict[str, float]:
-    clip = _generator(name).generate(audio, seed=0)[0]
-    f = behaviour_figures(clip, audio, truth)  # type: ignore[arg-type]
-    return {
-        "jaw_r": f["lip_sync"]["pearson_jaw_vs_self_envelope"],
-        "shut_self_silent": f["lip_sync"]["jaw_closed_when_self_silent"],
-        "shut_only_partner": f["lip_sync"]["jaw_closed_when_only_partner_speaks"],
-        "head_talk_listen": f["head"]["speaking_to_listening_ratio"],
-    }
+    return real_voice_figures(_generator(name), audio, truth, seed=0)
 
 
 @pytest.mark.parametrize("name", ["procedural", "probtalk", "a2p"])
