@@ -12,8 +12,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 corpus=${1:?usage: scripts/train_corpus.sh DIR}
+recorded=(asterisk-it asterisk-ru)  # the CC-BY voices, by their folders' names (the manifest's source names)
 if [ -f "$corpus/manifest.json" ]; then  # made before: reused, if it is the corpus asked for
-    if [ "${REAL_VOICES:-0}" = 1 ] && ! grep -q '"asterisk-it"' "$corpus/manifest.json"; then
+    if [ "${REAL_VOICES:-0}" = 1 ] && ! grep -q "\"${recorded[0]}\"" "$corpus/manifest.json"; then
         echo "train_corpus: $corpus holds a corpus made without REAL_VOICES=1; give another folder" >&2
         exit 1
     fi
@@ -23,6 +24,7 @@ voices=()
 if [ "${REAL_VOICES:-0}" = 1 ]; then
     cache="${CONVODRIVE_REAL_VOICES:-${XDG_CACHE_HOME:-$HOME/.cache}/convodrive/real_voices}"
     scripts/real_voices.sh "$cache" >/dev/null
-    voices=(--voices "$cache/voices/asterisk-it" --voices "$cache/voices/asterisk-ru" --voice-hours "${VOICE_HOURS:-0.5}")
+    voices=(--voice-hours "${VOICE_HOURS:-0.5}")
+    for name in "${recorded[@]}"; do voices+=(--voices "$cache/voices/$name"); done
 fi
 .venv/bin/convodrive corpus make --hours "${HOURS:-2}" "${voices[@]}" --out "$corpus" --seed 0
