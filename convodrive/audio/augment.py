@@ -6,7 +6,7 @@ telephone bands, rooms, noise and the other person's voice in its microphone (bl
 works on a training window's (frames, 2, bands) log-mel as band energies, where these effects are
 sums and products: voices and noise from one room add in energy (they are uncorrelated), a line
 or a level multiplies each band, a room smears each band's energy forward in time, and a pitch or
-speed change moves the energy along the frequency axis. That costs well under a millisecond a
+speed change moves the energy along the frequency axis. That costs about a millisecond a
 window, where changing the raw audio and computing its features again took about 0.1 s: sixteen
 windows a step made each training step several times slower than the network's own work.
 ``tests/audio/test_augment.py`` checks each kind against the same change made to the audio.
