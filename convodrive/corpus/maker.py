@@ -23,7 +23,7 @@ import os
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
@@ -117,6 +117,7 @@ class ConversationPlan:
     self_voice: Voice
     partner_voice: Voice
     seed: int
+    stratum: ClassVar[str] = "synthesised"
 
     @property
     def id(self) -> str:
@@ -144,6 +145,7 @@ class PairPlan:
     self_voice: RecordedVoice
     partner_voice: RecordedVoice
     seed: int
+    stratum: ClassVar[str] = "paired"
 
     @property
     def id(self) -> str:
@@ -175,6 +177,7 @@ class RecordedPlan:
     recording: RecordedConversation
     speaker: Speaker
     seed: int
+    stratum: ClassVar[str] = "recorded"
 
     @property
     def id(self) -> str:
@@ -245,7 +248,7 @@ def make_conversation(plan: Plan, takes: int, teacher: Teacher) -> Prepared:
         "take_seeds": [int(c.metadata["seed"]) for c in clips],
         **described,
     }
-    return prepare(Recording(plan.id, audio, clips, plan.speaker.label, metadata=metadata))
+    return prepare(Recording(plan.id, audio, clips, plan.speaker.label, metadata=metadata, stratum=plan.stratum))
 
 
 def plan_pairs(speakers: Sequence[RecordedSpeaker], hours: float, seed: int) -> list[PairPlan]:

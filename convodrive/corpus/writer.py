@@ -57,6 +57,10 @@ class Recording:
     split: str | None = None
     """A split the source prescribes; None lets the writer draw one."""
     metadata: dict[str, Any] = dataclasses.field(default_factory=dict)
+    stratum: str = ""
+    """Splits are drawn within each stratum (a maker's kind of conversation), so that the
+    conversations of one kind keep their splits whatever else the corpus holds: adding recorded
+    voices must not move a synthesised test conversation into train."""
 
 
 @dataclasses.dataclass
@@ -195,6 +199,7 @@ class CorpusWriter:
                     "id": rec.id,
                     "group": rec.group or rec.id,
                     "split": rec.split,
+                    "stratum": rec.stratum,
                     "speaker": rec.speaker,
                     "frames": int(p.arrays[f"{rec.id}/mel"].shape[0]),
                     "takes": len(rec.takes),
@@ -207,6 +212,22 @@ class CorpusWriter:
             )
         self._pending = []
 
+    def _draw_splits(self) -> dict[str, str]:
+        """Each group's split: the one its source prescribes, else drawn among its stratum's groups."""
+        fixed: dict[str, str] = {}
+        strata: dict[str, set[str]] = {}
+        stratum_of: dict[str, str] = {}
+        for e in self._entries:
+            if e["split"] is not None and fixed.setdefault(e["group"], e["split"]) != e["split"]:
+                raise ValueError(f"group {e['group']!r} is given two splits")
+            if stratum_of.setdefault(e["group"], e["stratum"]) != e["stratum"]:
+                raise ValueError(f"group {e['group']!r} is in two strata")
+            strata.setdefault(e["stratum"], set()).add(e["group"])
+        splits: dict[str, str] = {}
+        for groups in strata.values():
+            splits.update(assign_splits(sorted(groups), self.seed, fixed={g: fixed[g] for g in groups & fixed.keys()}))
+        return splits
+
     def close(self) -> Path:
         """Flush the last shard, draw the splits and write the manifest; returns its path."""
         if self._closed:
@@ -214,15 +235,11 @@ class CorpusWriter:
         self._flush()
         if not self._entries:
             raise UserError(f"{self.folder}: no conversations to write")
-        fixed: dict[str, str] = {}
-        for e in self._entries:
-            if e["split"] is not None:
-                if fixed.setdefault(e["group"], e["split"]) != e["split"]:
-                    raise ValueError(f"group {e['group']!r} is given two splits")
-        splits = assign_splits([e["group"] for e in self._entries], self.seed, fixed=fixed)
+        splits = self._draw_splits()
         conversations = []
         for e in self._entries:
             e["split"] = splits[e["group"]]
+            del e["stratum"]
             conversations.append(ConversationInfo(**e).to_json())
         frames = sum(e["frames"] for e in self._entries)
         manifest = {

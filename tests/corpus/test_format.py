@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -59,6 +60,29 @@ def test_splits_are_by_group_and_cover_train_val_test(small_corpus: tuple[Path, 
     fixed = assign_splits(groups, seed=5, fixed={"g3": "test"})
     assert fixed["g3"] == "test"
     assert assign_splits(["only"], seed=0) == {"only": "train"}
+
+
+def test_a_stratum_keeps_its_splits_whatever_else_the_corpus_holds(tmp_path: Path) -> None:
+    """Recorded voices added to a synthesised corpus leave every synthesised conversation in its
+    split: a model trained on the mixed corpus must not have learned the first one's test split."""
+
+    def splits(folder: Path, recs: list[Recording]) -> dict[str, str]:
+        with CorpusWriter(folder, {"kind": "test"}, seed=3) as writer:
+            for rec in recs:
+                writer.add(rec)
+        return {c.id: c.split for c in Corpus.open(folder).conversations}
+
+    def made(prefix: str, count: int, stratum: str) -> list[Recording]:
+        return [
+            dataclasses.replace(fake_recording(f"{prefix}{i}", 0.2, takes=1), stratum=stratum) for i in range(count)
+        ]
+
+    alone = splits(tmp_path / "alone", made("conv", 20, "synthesised"))
+    mixed = splits(tmp_path / "mixed", made("conv", 20, "synthesised") + made("pair", 10, "paired"))
+    assert {k: v for k, v in mixed.items() if k.startswith("conv")} == alone
+    assert sorted(v for k, v in mixed.items() if k.startswith("pair")).count("test") == 1  # drawn among themselves
+    unstratified = splits(tmp_path / "one", made("conv", 20, "") + made("pair", 10, ""))
+    assert {k: v for k, v in unstratified.items() if k.startswith("conv")} != alone  # what a single draw did
 
 
 def test_windows_are_slices_and_sampling_is_seeded(small_corpus: tuple[Path, list[Recording]]) -> None:
