@@ -75,6 +75,13 @@ def _mel_to_hz(mel: np.ndarray) -> np.ndarray:
     return 700.0 * (10.0 ** (mel / 2595.0) - 1.0)
 
 
+def _band_edges(spec: MelSpec) -> np.ndarray:
+    """(bands + 2,) Hz: band m rises from edge m, peaks at m + 1 and falls to m + 2."""
+    return np.asarray(
+        _mel_to_hz(np.linspace(_hz_to_mel(np.array(spec.fmin)), _hz_to_mel(np.array(spec.fmax)), spec.bands + 2))
+    )
+
+
 class _Filterbank:
     """Triangular mel filters (HTK scale, peak 1) applied as a sparse sum, row by row.
 
@@ -84,9 +91,7 @@ class _Filterbank:
 
     def __init__(self, spec: MelSpec) -> None:
         bins = np.arange(spec.n_fft // 2 + 1) * ANALYSIS_RATE / spec.n_fft
-        edges = _mel_to_hz(
-            np.linspace(_hz_to_mel(np.array(spec.fmin)), _hz_to_mel(np.array(spec.fmax)), spec.bands + 2)
-        )
+        edges = _band_edges(spec)
         index: list[np.ndarray] = []
         weight: list[np.ndarray] = []
         starts: list[int] = []
@@ -194,8 +199,7 @@ def dyadic_log_mel(audio: DyadicAudio, num_frames: int | None = None, spec: MelS
 
 def band_centres(spec: MelSpec = DEFAULT_SPEC) -> np.ndarray:
     """(bands,) each band's peak frequency in Hz."""
-    edges = _mel_to_hz(np.linspace(_hz_to_mel(np.array(spec.fmin)), _hz_to_mel(np.array(spec.fmax)), spec.bands + 2))
-    return np.asarray(edges[1:-1])
+    return _band_edges(spec)[1:-1]
 
 
 def band_average(spec: MelSpec, power_of_hz: np.ndarray) -> np.ndarray:
