@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Reproduce the ProbTalk weights shipped in convodrive/generators/probtalk/model/ from a fresh clone:
-# a 2-hour bootstrap corpus, the `probtalk` recipe's `small` preset in its three stages (vq,
-# predictor, refiner), an ONNX export (int8 only where it costs under 5 % on FGD holistic and
-# under 20 % on FD_k body, which FGD barely sees: see train_a2p.sh), a comparison
-# with knn and random on the corpus's test split, and the model card.
+# a 2-hour bootstrap corpus with half an hour of recorded voices paired in, the `probtalk` recipe's
+# `small` preset in its three stages (vq, predictor, refiner), an ONNX export (int8 only where it
+# costs under 5 % on FGD holistic and under 20 % on FD_k body, which FGD barely sees: see
+# train_a2p.sh), a comparison with knn and random on the corpus's test split, and the model card.
 #
 #   scripts/setup.sh --dev && scripts/train_probtalk.sh [CORPUS_DIR] [RUN_DIR]
 #
@@ -17,11 +17,14 @@
 # run resumes each stage where it stopped.
 # SHIP_ONLY=1 trains nothing (RUN_DIR's stages are done): it exports, compares and ships;
 # TRAIN_ONLY=1 stops after training (train on a GPU machine, ship where the corpus's audio is).
-# REAL_VOICES=1 (see scripts/train_corpus.sh) mixes real recorded voices into the corpus and augments
-# every stage that hears audio (--set augment=all --set augment_p=0.2); the card then lists the voices and their licences.
+# REAL_VOICES=1, the default (see scripts/train_corpus.sh), mixes real recorded voices into the corpus
+# (CORPUS_DIR default corpus2hrv) and augments every stage that hears audio (--set augment=all
+# --set augment_p=0.2); the card then lists the voices and their licences. REAL_VOICES=0 trains on
+# espeak-ng alone, unaugmented (CORPUS_DIR default corpus2h, the weights shipped before these).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-corpus=${1:-corpus2h}
+export REAL_VOICES=${REAL_VOICES:-1}
+corpus=${1:-$([ "$REAL_VOICES" = 1 ] && echo corpus2hrv || echo corpus2h)}
 runs=${2:-runs/probtalk-small}
 threads=${THREADS:-$(nproc)}
 bin=.venv/bin
@@ -31,7 +34,7 @@ scripts/train_corpus.sh "$corpus"
 augment=()  # REAL_VOICES=1 (scripts/train_corpus.sh): both channels augmented, bleed included,
 # each kind on a fifth of the windows: with half (hardly a window left clean) probtalk's mouth stayed
 # shut on 81-93 % of the frames where only the partner speaks with -12 dB bleed; with a fifth, 96-99 %
-if [ "${REAL_VOICES:-0}" = 1 ]; then augment=(--set augment=all --set augment_p=0.2); fi
+if [ "$REAL_VOICES" = 1 ]; then augment=(--set augment=all --set augment_p=0.2); fi
 
 # Each stage: its steps, the learning rate decaying over them (the preset's warm-up is 20 steps).
 train() {
