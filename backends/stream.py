@@ -174,7 +174,11 @@ class StreamServer:
         from websockets.asyncio.server import serve
 
         async def listen() -> Any:
-            return await serve(self._session, self.host, self.port, process_request=self._http, compression=None)
+            # open_timeout bounds the handshake, which includes answering the page's request for
+            # the avatar: on a loaded machine its first build can take longer than the default 10 s.
+            return await serve(
+                self._session, self.host, self.port, process_request=self._http, compression=None, open_timeout=60
+            )
 
         self._thread.start()
         future = asyncio.run_coroutine_threadsafe(listen(), self._loop)
@@ -314,4 +318,7 @@ class _Avatar:
             except BaseException as exc:  # the page then shows why; frames still flow
                 self.future.set_exception(exc)
 
+        # Running before anyone waits: a request that gives up (its wrap_future cancelled) would
+        # otherwise cancel the one shared build, and every later request would fail with it.
+        self.future.set_running_or_notify_cancel()
         threading.Thread(target=build, name="stream-avatar", daemon=True).start()

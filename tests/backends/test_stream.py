@@ -194,3 +194,26 @@ def test_other_sites_and_rebound_names_are_refused(tmp_path: Path, talk: Path) -
         if run.poll() is None:
             run.kill()
     assert run.returncode == 0
+
+
+def test_a_request_that_gives_up_leaves_the_avatar_to_the_next() -> None:
+    """The page's request for the avatar can be cancelled while the mannequin is built (its
+    handshake timed out on a loaded machine, the page went away): the one shared build goes on, and
+    the next request gets it. A cancelled waiter used to cancel the build, so the page never got
+    its avatar and the builder thread died on setting a cancelled future's result."""
+    import asyncio
+
+    from convodrive.backends.stream import _Avatar
+
+    avatar = _Avatar()
+    avatar.start()
+
+    async def give_up_then_ask_again() -> bytes:
+        waiter = asyncio.ensure_future(asyncio.wrap_future(avatar.future))
+        await asyncio.sleep(0)
+        waiter.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await waiter
+        return await asyncio.wait_for(asyncio.wrap_future(avatar.future), 120)
+
+    assert asyncio.run(give_up_then_ask_again())[:4] == b"glTF"
