@@ -5,8 +5,10 @@ microphone's time comes from PortAudio's ``inputBufferAdcTime``: each callback n
 captured at monotonic time m", and, as for playback (``playback``), the median over the last
 callbacks gives a steady mapping that ignores the start-up bursts of an audio server. A
 microphone that goes away (its stream ends, or no callback for ``LOST_SECONDS``) is reported and
-then heard as silence; the run goes on. One that only went quiet (a process starved of CPU, an
-audio server that paused) is taken back as soon as its callbacks come again.
+then heard as silence; the run goes on. One that only went quiet (an audio server that paused) is
+taken back as soon as its callbacks come again. A process starved of CPU (or stopped) hears no
+callbacks either, but that silence is its own, not the microphone's: only silence that the run
+watched while it was itself running counts.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import numpy as np
 
 from convodrive.audio.live.devices import Device, close_stream, portaudio
 from convodrive.audio.live.ring import SampleRing
+from convodrive.audio.live.watch import Watch
 from convodrive.audio.resample import StreamResampler
 from convodrive.audio.source import ANALYSIS_RATE, AudioSource, ChannelMap
 from convodrive.plumbing.errors import UserError
@@ -121,6 +124,8 @@ class MicrophoneInput(PartnerInput):
         self._lost: str | None = None
         self._quiet_since: float | None = None
         """When the microphone was found silent (lost, but it may come back)."""
+        self._watch = Watch(max_gap=LOST_SECONDS / 2)
+        """Since when ``lost`` has been asked often enough to have seen callbacks, had there been any."""
         self.portaudio_overflows = 0
         self.callbacks = 0
         try:
@@ -174,13 +179,15 @@ class MicrophoneInput(PartnerInput):
         if self._quiet_since is not None and self._last_call is not None and self._last_call > self._quiet_since:
             self._lost = self._quiet_since = None  # its callbacks came back
         if self._lost is None and self._started_at is not None:
-            quiet = time.monotonic() - (self._last_call or self._started_at)
+            now = time.monotonic()
+            self._watch.look(now)  # after a gap (this process starved or stopped) the silence starts over
+            quiet = now - max(self._last_call or self._started_at, self._watch.since or now)
             if self._finished.is_set():
                 self._lost = f"{self.describe} stopped delivering audio (its stream ended)"
             elif self._last_call is not None and quiet > LOST_SECONDS:
                 self._lost = f"{self.describe} stopped delivering audio (nothing for {LOST_SECONDS:g} s)"
-                self._quiet_since = time.monotonic()
-            elif self._last_call is None and quiet > START_SECONDS:
+                self._quiet_since = now
+            elif self._last_call is None and now - self._started_at > START_SECONDS:
                 self._lost = f"{self.describe} delivered no audio in its first {START_SECONDS:g} s"
         return self._lost
 

@@ -32,6 +32,7 @@ import numpy as np
 
 from convodrive.audio.live.devices import Device, close_stream, portaudio
 from convodrive.audio.live.ring import SampleRing
+from convodrive.audio.live.watch import Watch
 from convodrive.plumbing.errors import UserError
 
 BLOCK_SECONDS = 0.01
@@ -42,11 +43,15 @@ MAX_LEAD = 2.0
 STALL_BLOCKS = 5
 """A gap of this many block periods (or of most of the output latency, for servers that call back
 in bursts) between callbacks means the time line moved: start over."""
-STOPPED_SECONDS = 2.0
+STOPPED_SECONDS = 4.0
 STOPPED_SHARE = 0.25
-"""A paced stream that took less than this share of real time over ``STOPPED_SECONDS`` (or twice
-its output latency, if longer) has stopped: a process starved for a second still takes half, a
-hung audio server next to nothing."""
+"""A paced stream that took less than this share of real time over the last ``STOPPED_SECONDS``
+(or twice its output latency, if longer) has stopped; a hung audio server takes next to nothing.
+A stream that underran resumes late: through PulseAudio's ALSA plugin into a null sink it takes
+nothing for 1.85 s after any underrun, however short (measured by stopping a live run with
+SIGSTOP for 0.3, 1 and 2 s), so the window is long enough to see it play again. Only time this process
+watched counts: a process stopped or starved for longer than ``WATCH_GAP`` starts it over."""
+WATCH_GAP = 0.5
 START_SECONDS = 5.0
 """The same for a stream that has not yet settled into its pace (an audio server starting up)."""
 
@@ -72,8 +77,9 @@ class Playback:
         self._closed = threading.Event()
         self._stopped: str | None = None
         self._started_at: float | None = None
-        self._watch: tuple[float, int] | None = None
-        """(monotonic time, ring samples taken) at the start of the window ``stopped`` judges."""
+        self._looks = Watch(max_gap=WATCH_GAP)
+        self._window: collections.deque[tuple[float, int]] = collections.deque()
+        """(monotonic time, ring samples taken) at each look over the window ``stopped`` judges."""
         self._frozen: float | None = None
         """The anchor the position keeps once the stream is given up."""
         self._latency = 0.0
@@ -167,18 +173,16 @@ class Playback:
             if now - self._started_at > START_SECONDS:
                 self._give_up(f"it never started playing in {START_SECONDS:g} s", now)
             return self._stopped
-        taken = self.ring.read_pos
-        if self._watch is None:
-            self._watch = (now, taken)
-            return None
-        since, before = self._watch
+        if self._looks.look(now):  # the first look, or after a gap: this process, not the stream, stopped
+            self._window.clear()
+        self._window.append((now, self.ring.read_pos))
         window = max(STOPPED_SECONDS, 2.0 * self._latency)
-        if now - since >= window:
-            played = (taken - before) / self.rate
-            if played < STOPPED_SHARE * (now - since):
-                self._give_up(f"it took {played:.2f} s of audio in {now - since:.1f} s", now)
-            else:
-                self._watch = (now, taken)
+        while len(self._window) > 1 and now - self._window[1][0] >= window:
+            self._window.popleft()  # the oldest look stays the last one at least a window back
+        since, before = self._window[0]
+        played = (self.ring.read_pos - before) / self.rate
+        if now - since >= window and played < STOPPED_SHARE * (now - since):
+            self._give_up(f"it took {played:.2f} s of audio in {now - since:.1f} s", now)
         return self._stopped
 
     def _give_up(self, why: str, now: float) -> None:
