@@ -24,7 +24,7 @@
 # scripts/train_fgd.sh when missing) or FGD_MODEL=DIR; SAMPLES (default 2) sets the takes per
 # test conversation, MAX_CONVERSATIONS=N scores only the first N (default: all).
 # REAL_VOICES=1 (see scripts/train_corpus.sh) mixes real recorded voices into the corpus and augments
-# every stage that hears audio (--set augment=all --set augment_p=0.2); the card then lists the voices and their licences.
+# every stage that hears audio (scripts/augment.sh); the card then lists the voices and their licences.
 # Uses CUDA when torch sees a GPU (--device auto). Logs: RUN_DIR/{face,body,distill}.log.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -80,10 +80,7 @@ train_all() { # the face and body sides at once, then both students distilled
 }
 
 scripts/train_corpus.sh "$corpus"
-augment=()  # REAL_VOICES=1 (scripts/train_corpus.sh): both channels augmented, bleed included,
-# each kind on a fifth of the windows: with half (hardly a window left clean) probtalk's mouth stayed
-# shut on 81-93 % of the frames where only the partner speaks with -12 dB bleed; with a fifth, 96-99 %
-if [ "${REAL_VOICES:-0}" = 1 ]; then augment=(--set augment=all --set augment_p=0.2); fi
+source scripts/augment.sh  # augment=(...) with REAL_VOICES=1
 [ "${SHIP_ONLY:-0}" = 1 ] || train_all
 if [ "${TRAIN_ONLY:-0}" = 1 ]; then echo "train_a2p: trained in $runs (TRAIN_ONLY: nothing exported)"; exit 0; fi
 trained=$(date +%s)
@@ -156,7 +153,7 @@ where = ", ".join(f"{s} {run['device']} (torch {run['torch']})" for s, run in ru
 env = "".join(f"{k}={v} " for k, v in sorted(os.environ.items()) if k in ("SCALE", "SHIP_ONLY", "SAMPLES", "MAX_CONVERSATIONS", "REAL_VOICES", "VOICE_HOURS", "HOURS") or k.startswith("STEPS_"))
 made, licence = train_script_corpus(Path(corpus), """Trained only on data this project made (espeak-ng speech, procedural motion): no motion or audio of
 the audio2photoreal data or any other third-party corpus, so none of their non-commercial terms
-apply. The weights are under the licence of convodrive itself.""")
+apply. The weights are under the licence of convodrive itself.""", runs_json)
 card = f"""
 ## How these weights were made
 

@@ -18,8 +18,8 @@
 # SHIP_ONLY=1 trains nothing (RUN_DIR's stages are done): it exports, compares and ships;
 # TRAIN_ONLY=1 stops after training (train on a GPU machine, ship where the corpus's audio is).
 # REAL_VOICES=1, the default (see scripts/train_corpus.sh), mixes real recorded voices into the corpus
-# (CORPUS_DIR default corpus2hrv) and augments every stage that hears audio (--set augment=all
-# --set augment_p=0.2); the card then lists the voices and their licences. REAL_VOICES=0 trains on
+# (CORPUS_DIR default corpus2hrv) and augments every stage that hears audio (scripts/augment.sh);
+# the card then lists the voices and their licences. REAL_VOICES=0 trains on
 # espeak-ng alone, unaugmented (CORPUS_DIR default corpus2h, the weights shipped before these).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -31,10 +31,7 @@ bin=.venv/bin
 model=convodrive/generators/probtalk/model
 started=$(date +%s)
 scripts/train_corpus.sh "$corpus"
-augment=()  # REAL_VOICES=1 (scripts/train_corpus.sh): both channels augmented, bleed included,
-# each kind on a fifth of the windows: with half (hardly a window left clean) probtalk's mouth stayed
-# shut on 81-93 % of the frames where only the partner speaks with -12 dB bleed; with a fifth, 96-99 %
-if [ "$REAL_VOICES" = 1 ]; then augment=(--set augment=all --set augment_p=0.2); fi
+source scripts/augment.sh  # augment=(...) with REAL_VOICES=1
 
 # Each stage: its steps, the learning rate decaying over them (the preset's warm-up is 20 steps).
 train() {
@@ -91,7 +88,7 @@ where = ", ".join(sorted({f"{run['device']} (torch {run['torch']})" for run in s
 env = "".join(f"{k}={v} " for k, v in sorted(os.environ.items()) if k in ("SHIP_ONLY", "THREADS", "REAL_VOICES", "VOICE_HOURS", "HOURS"))
 made, licence = train_script_corpus(Path(corpus), """Trained only on data this project made (espeak-ng speech, procedural motion): no motion or audio of
 SHOW, BEAT2, the audio2photoreal data or any other third-party corpus, so none of their
-non-commercial terms apply. The weights are under the licence of convodrive itself.""")
+non-commercial terms apply. The weights are under the licence of convodrive itself.""", stages)
 card = f"""
 ## How these weights were made
 

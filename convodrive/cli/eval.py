@@ -70,6 +70,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     c.add_argument("--samples", type=int, default=4, help="samples per conversation (Div_sample, Var)")
     c.add_argument("--seed", type=int, default=0, help="seed of generators and of the random baseline")
     c.add_argument("--max-conversations", type=int, default=None, help="score only the first N conversations")
+    c.add_argument(
+        "--stratum",
+        default=None,
+        metavar="KIND",
+        help="score only conversations of one kind (synthesised, paired, recorded: corpus make's)",
+    )
     c.add_argument("--fgd-model", type=Path, default=None, help="FGD embedder model folder (default: the shipped one)")
     c.set_defaults(func=run_compare)
 
@@ -91,6 +97,7 @@ def run_compare(args: argparse.Namespace) -> int:
             samples=args.samples,
             seed=args.seed,
             max_conversations=args.max_conversations,
+            stratum=args.stratum,
             fgd_model=args.fgd_model,
             generator_options=options,
         ),

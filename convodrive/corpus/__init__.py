@@ -6,7 +6,8 @@ Layout of a corpus folder (format ``convodrive.corpus``, version 1)::
                                audio feature spec, the source (command, options, seed), speakers,
                                split counts, shards (path, bytes, conversations) and one entry per
                                conversation: id, split, group, speaker, frames, takes, shard,
-                               audio, missing_joints, missing_face, metadata (language, voices, ...)
+                               audio, missing_joints, missing_face, metadata (language, voices, ...),
+                               stratum (the maker's kind of conversation; absent or empty if imported)
     audio/<id>.wav             16 kHz stereo 16-bit PCM: channel 0 self, channel 1 the partner
     shards/shard-NNNNN.npz     uncompressed npz, per conversation <id>/<array>:
         pose (K, T, 55, 3) float32      K takes of local axis-angle rotations (canonical skeleton)
@@ -18,7 +19,8 @@ Layout of a corpus folder (format ``convodrive.corpus``, version 1)::
 
 A conversation is seen from one side: channel 0 is the person whose motion is stored, the
 "speaker" label names their style or identity. Both sides of one dyad are two conversations in one
-``group``; splits (train / val / test) are drawn per group, so no conversation leaks across them.
+``group``; splits (train / val / test) are drawn per group, so no conversation leaks across them,
+and within each ``stratum``, so adding one kind of conversation moves no other kind's.
 Channels a source lacks are listed by name (``missing_joints``, ``missing_face``) and stored as
 zeros; ``representation.feature_mask`` turns them into the per-feature mask that statistics and
 losses use.

@@ -57,6 +57,9 @@ class ConversationInfo:
     missing_joints: tuple[str, ...] = ()
     missing_face: tuple[str, ...] = ()
     metadata: dict[str, Any] = dataclasses.field(default_factory=dict)
+    stratum: str = ""
+    """The maker's kind of conversation (``synthesised``, ``paired``, ``recorded``; empty for an
+    import): splits are drawn within each, and eval scores each apart."""
 
     @property
     def joint_mask(self) -> np.ndarray:
@@ -91,6 +94,7 @@ class ConversationInfo:
                 missing_joints=tuple(str(j) for j in data.get("missing_joints", ())),
                 missing_face=tuple(str(c) for c in data.get("missing_face", ())),
                 metadata=dict(data.get("metadata", {})),
+                stratum=str(data.get("stratum", "")),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise InputFileError(source, f"bad conversation entry ({exc.__class__.__name__}: {exc})") from None

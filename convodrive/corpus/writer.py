@@ -239,7 +239,6 @@ class CorpusWriter:
         conversations = []
         for e in self._entries:
             e["split"] = splits[e["group"]]
-            del e["stratum"]
             conversations.append(ConversationInfo(**e).to_json())
         frames = sum(e["frames"] for e in self._entries)
         manifest = {

@@ -43,6 +43,9 @@ class CompareRequest:
     samples: int = 4
     seed: int = 0
     max_conversations: int | None = None
+    stratum: str | None = None
+    """Score only conversations of this kind (``ConversationInfo.stratum``): a mixed corpus's test
+    split pools kinds that score apart (synthesised voices and recorded ones)."""
     fgd_model: Path | None = None
     generator_options: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
 
@@ -79,14 +82,25 @@ def _check_names(request: CompareRequest) -> None:
             raise UserError(f"-G {label}.KEY=VALUE: '{label}' is not a generator in --generators")
 
 
+def _conversations(corpus: Corpus, request: CompareRequest) -> list[ConversationInfo]:
+    convs = corpus.split(request.split)
+    if request.stratum is not None:
+        kinds = sorted({c.stratum or "(none)" for c in convs})
+        convs = [c for c in convs if c.stratum == request.stratum]
+        if not convs:
+            raise UserError(
+                f"{request.corpus}: no conversation of kind '{request.stratum}' in the {request.split} split "
+                f"(kinds there: {', '.join(kinds) or 'none'})"
+            )
+    return convs[: request.max_conversations] if request.max_conversations else convs
+
+
 def compare(request: CompareRequest, on_method: Callable[[str], None] | None = None) -> CompareResult:
     _check_names(request)
     if request.samples < 1:
         raise UserError(f"--samples must be at least 1, got {request.samples}")
     corpus = Corpus.open(request.corpus)
-    convs = corpus.split(request.split)
-    if request.max_conversations:
-        convs = convs[: request.max_conversations]
+    convs = _conversations(corpus, request)
     if not convs:
         raise UserError(f"{request.corpus}: the {request.split} split holds no conversation")
     stats = feature_stats(corpus, "train")
@@ -134,6 +148,7 @@ def compare(request: CompareRequest, on_method: Callable[[str], None] | None = N
     context = {
         "corpus": str(request.corpus),
         "split": request.split,
+        "stratum": request.stratum,
         "conversations": len(convs),
         "hours": round(sum(c.frames for c in convs) / 30 / 3600, 3),
         "samples": request.samples,
@@ -142,7 +157,8 @@ def compare(request: CompareRequest, on_method: Callable[[str], None] | None = N
         "fgd_files": embedder.folder.spec["files"],
         "seconds": seconds,
     }
-    title = f"{Path(request.corpus).name}, {request.split} split: {len(convs)} conversations, {request.samples} samples each"
+    split = f"{request.split} split" + (f" ({request.stratum})" if request.stratum else "")
+    title = f"{Path(request.corpus).name}, {split}: {len(convs)} conversations, {request.samples} samples each"
     outputs = write_outputs(results, Path(request.out), title, context)
     return CompareResult(results, outputs, seconds)
 

@@ -26,17 +26,32 @@ def _recorded(source: dict[str, Any]) -> list[dict[str, Any]]:
     return [s for s in source.get("sources", ()) if s.get("name") != "espeak-ng"]
 
 
-def train_script_corpus(corpus: Path, own_licence: str) -> tuple[str, str]:
+def _augmented(runs: dict[str, dict[str, Any]]) -> str:
+    """How the stages' training windows were augmented, read from each stage's own run."""
+    settings: dict[str, list[str]] = {}
+    for stage, run in runs.items():
+        train = run.get("train_config") or {}
+        if train.get("augment"):
+            settings.setdefault(f"--set augment={train['augment']} --set augment_p={train['augment_p']:g}", []).append(
+                stage
+            )
+    return "; ".join(f"`{flags}` ({', '.join(stages)})" for flags, stages in settings.items())
+
+
+def train_script_corpus(corpus: Path, own_licence: str, runs: dict[str, dict[str, Any]]) -> tuple[str, str]:
     """What a train script's card says of its corpus (``scripts/train_corpus.sh``): how it was made
-    and, with ``REAL_VOICES=1``, the recorded voices it heard; and the licence paragraph,
-    ``own_licence`` when it heard none, else one that names each voice's licence (attribution)."""
+    and, with ``REAL_VOICES=1``, the recorded voices it heard; how its stages (``runs``: each
+    stage's run.json) were augmented; and the licence paragraph, ``own_licence`` when it heard
+    none, else one that names each voice's licence (attribution)."""
     source = json.loads((corpus / "manifest.json").read_text()).get("source", {})
     recorded = _recorded(source)
-    made_with = ", then with `REAL_VOICES=1`: real voices paired in, training augmented (`--set augment=all --set augment_p=0.2`)"
+    augmented = _augmented(runs)
+    made_with = ", then with `REAL_VOICES=1`: real voices paired in" if recorded else ""
+    made_with += f"; training augmented: {augmented}" if augmented else ""
     heard = "".join(f" and {s['name']} ({s['hours']} h)" for s in recorded)
     made = (
         f"made by `scripts/train_corpus.sh` (`convodrive corpus make --hours {source.get('hours')} --seed 0`"
-        f"{made_with if recorded else ''}; speech by espeak-ng{heard}, motion by convodrive's `procedural` "
+        f"{made_with}; speech by espeak-ng{heard}, motion by convodrive's `procedural` "
         "generator); its test split scores the model below"
     )
     if not recorded:

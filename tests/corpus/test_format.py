@@ -81,6 +81,8 @@ def test_a_stratum_keeps_its_splits_whatever_else_the_corpus_holds(tmp_path: Pat
     mixed = splits(tmp_path / "mixed", made("conv", 20, "synthesised") + made("pair", 10, "paired"))
     assert {k: v for k, v in mixed.items() if k.startswith("conv")} == alone
     assert sorted(v for k, v in mixed.items() if k.startswith("pair")).count("test") == 1  # drawn among themselves
+    strata = {c.id: c.stratum for c in Corpus.open(tmp_path / "mixed").conversations}
+    assert {k: v for k, v in strata.items() if k.startswith("pair")} == {f"pair{i}": "paired" for i in range(10)}
     unstratified = splits(tmp_path / "one", made("conv", 20, "") + made("pair", 10, ""))
     assert {k: v for k, v in unstratified.items() if k.startswith("conv")} != alone  # what a single draw did
 

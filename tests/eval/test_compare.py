@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -47,6 +48,32 @@ def test_compare_writes_the_table_json_and_plot(tiny_corpus: Path, fgd_model: Pa
     assert "| knn |" in table and "FD_g body ↓" in table
     png = (tmp_path / "cmp" / "compare.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+
+
+def test_a_stratum_scores_only_its_kind_of_conversation(tiny_corpus: Path, fgd_model: Path, tmp_path: Path) -> None:
+    """A mixed corpus's test split holds kinds that score apart: ``--stratum`` scores one of them,
+    and a kind the split lacks is one line naming those it has."""
+    corpus = tmp_path / "mixed"
+    shutil.copytree(tiny_corpus, corpus)
+    manifest = json.loads((corpus / "manifest.json").read_text())
+    convs = manifest["conversations"]
+    recorded = next(c for c in convs if c["split"] == "test")
+    next(c for c in convs if c["split"] == "train")["split"] = "test"  # a second test conversation
+    for c in convs:
+        c["stratum"] = "recorded" if c is recorded else "synthesised"
+    (corpus / "manifest.json").write_text(json.dumps(manifest))
+    tested = sum(c["split"] == "test" for c in convs)
+    args = ["eval", "compare", "--corpus", str(corpus), "--generators", "random", "--samples", "1"]
+    for kind, count in (("recorded", 1), ("synthesised", tested - 1)):
+        out = run_cli(*args, "--stratum", kind, "--fgd-model", str(fgd_model), "--out", str(tmp_path / kind))
+        assert out.returncode == 0, out.stderr
+        data = json.loads((tmp_path / kind / "compare.json").read_text())
+        assert (data["stratum"], data["conversations"]) == (kind, count)
+        assert f"test split ({kind}): {count} conversations" in (tmp_path / kind / "compare.md").read_text()
+    out = run_cli(*args, "--stratum", "paired", "--out", str(tmp_path / "none"))
+    assert out.returncode == 2 and len(out.stderr.splitlines()) == 1, out.stderr
+    assert "no conversation of kind 'paired' in the test split (kinds there: recorded, synthesised)" in out.stderr
+    assert not (tmp_path / "none").exists()
 
 
 def test_an_unknown_method_is_one_line_before_any_work(tiny_corpus: Path, tmp_path: Path) -> None:

@@ -1,5 +1,5 @@
-"""The learned generators stream in constant memory: two minutes of audio peak no higher than
-twenty seconds (windows, guides and caches are dropped as the stream moves on)."""
+"""The learned generators stream in constant memory: a minute of audio peaks no higher than ten
+seconds, five 2-second windows (windows, guides and caches are dropped as the stream moves on)."""
 
 from __future__ import annotations
 
@@ -41,5 +41,5 @@ def test_memory_stays_constant_on_long_audio(
         tracemalloc.stop()
         return top
 
-    short, long = peak(20), peak(120)
+    short, long = peak(10), peak(60)
     assert long < short * 1.3 + 200_000, (short, long)

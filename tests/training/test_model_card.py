@@ -120,13 +120,19 @@ def test_a_train_scripts_card_names_the_recorded_voices_and_their_licences(tmp_p
         (tmp_path / "manifest.json").write_text(
             json.dumps({"source": {"kind": "made", "hours": 2, "sources": sources}})
         )
-        made, licence = train_script_corpus(tmp_path, "OWN")
+        augmented = len(sources) > 1
+        runs = {  # each stage's run.json: the PQ-VAE hears no audio, so it is never augmented
+            "vq": {"train_config": {"augment": "", "augment_p": 0.5}},
+            "predictor": {"train_config": {"augment": "all" if augmented else "", "augment_p": 0.2}},
+        }
+        made, licence = train_script_corpus(tmp_path, "OWN", runs)
         assert made.startswith("made by `scripts/train_corpus.sh` (`convodrive corpus make --hours 2 --seed 0`")
         assert machine_paths(made + licence) == []
-        if len(sources) == 1:
-            assert "REAL_VOICES" not in made and "asterisk" not in made and licence == "OWN"
+        if not augmented:
+            assert "REAL_VOICES" not in made and "asterisk" not in made and "augment" not in made and licence == "OWN"
         else:
             assert "REAL_VOICES=1" in made and "espeak-ng and asterisk-it (0.5 h)" in made
+            assert "training augmented: `--set augment=all --set augment_p=0.2` (predictor)" in made
             assert "asterisk-it, CC-BY-3.0 (Carlo Flora), 0.5 h" in licence and "attribution" in licence
 
 
