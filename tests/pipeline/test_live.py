@@ -282,7 +282,11 @@ def test_a_stopped_run_keeps_its_microphone_and_speaker(pulse, tmp_path: Path) -
     microphone and the speaker go on: no callbacks came, but the silence was the run's, not the
     devices', so neither is given up (a loaded CI machine once had the microphone lost at a run's
     very end; a stop of a second had the speaker given up for the rest of the run)."""
-    words = speak("Yes, I saw it yesterday, and it looked great. Then we walked home together.", rate=150)
+    words = speak(  # the partner talks through the whole run
+        "Yes, I saw it yesterday, and it looked great. Then we walked home together along the river, "
+        "talking about the weather, the long winter and the little boats on the water.",
+        rate=150,
+    )
     partner_wav = tmp_path / "partner_talks.wav"
     sf.write(partner_wav, np.concatenate([np.zeros(8000, np.float32), words, np.zeros(48000, np.float32)]), 16000)
     self_wav, _ = dialogue_halves(tmp_path / "in", seconds=7.0)
@@ -314,7 +318,7 @@ def test_a_stopped_run_keeps_its_microphone_and_speaker(pulse, tmp_path: Path) -
     assert live["playback"]["stopped"] is None, live["events"]  # nor its speaker
     assert live["self_voice"]["unheard_ms"] == 0, live["self_voice"]
     vad = load_clip(out / "motion.npz").vad[:, 1]
-    assert vad[int(3.5 * 30) :].max() > 0.5, "the partner is heard after the stop"
+    assert vad[-60:].max() > 0.5, "the partner is heard after the stop, to the end"
 
 
 def test_speaker_whose_server_stops_answering(pulse, tmp_path: Path) -> None:

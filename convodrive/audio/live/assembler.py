@@ -135,6 +135,8 @@ class LiveAudio:
             if chunk is None:
                 time.sleep(POLL_SECONDS)
                 continue
+            if chunk.final:  # nothing more is pulled: a microphone left open would overrun its ring
+                self.partner.close()
             yield chunk
             if chunk.final:
                 return

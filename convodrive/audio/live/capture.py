@@ -75,7 +75,7 @@ class PartnerInput(abc.ABC):
         return None
 
     def close(self) -> None:  # noqa: B027 (optional hook)
-        pass
+        """Stop listening; a second call does nothing."""
 
     def report(self) -> dict[str, Any]:
         return {"source": self.describe}
@@ -128,6 +128,7 @@ class MicrophoneInput(PartnerInput):
         """Since when ``lost`` has been asked often enough to have seen callbacks, had there been any."""
         self.portaudio_overflows = 0
         self.callbacks = 0
+        self._closed = False
         try:
             self._stream = sd.InputStream(
                 device=device.index,
@@ -192,7 +193,11 @@ class MicrophoneInput(PartnerInput):
         return self._lost
 
     def close(self) -> None:
-        close_stream(self._stream, answering=self.lost() is None)
+        if self._closed:
+            return
+        answering = self.lost() is None
+        self._closed = True
+        close_stream(self._stream, answering=answering)
 
     def report(self) -> dict[str, Any]:
         return {

@@ -190,3 +190,26 @@ def test_a_voice_that_ends_where_the_generator_already_is_still_ends_the_run() -
     ended.append(16000)
     chunk = audio.poll()
     assert chunk is not None and chunk.final and chunk.start == 16000 and len(chunk) == 0
+
+
+def test_the_final_chunk_closes_the_partner_before_the_run_winds_down() -> None:
+    """Nothing is pulled after the final chunk, so the assembler closes the partner as it hands it
+    over: a microphone left open while the backends ease out overran its ring (a report counted
+    296 overruns that were only the wind-down's)."""
+
+    class Closing(NoPartner):
+        closed_at: int | None = None
+
+        def close(self) -> None:
+            self.closed_at = len(taken)
+
+    self_voice, partner, taken = Timeline(), Closing(), []
+    audio = LiveAudio(self_voice, lambda: 32000, partner, lambda mono: mono - T0, DELAY, GRACE)
+    self_voice.append(np.ones(16000, np.float32))
+    for chunk in audio.chunks():
+        assert partner.closed_at is None or chunk.final, "closed only with the final chunk"
+        if partner.closed_at is None and not chunk.final:
+            self_voice.append(np.ones(16000, np.float32))  # the rest of the voice comes
+        taken.append(chunk)
+    assert taken[-1].final and partner.closed_at == len(taken) - 1
+    assert sum(len(c) for c in taken) == 32000
