@@ -13,7 +13,9 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -24,7 +26,7 @@ from convodrive.eval.sync import HOP_SECONDS, level_db, mouth_onsets, pair_onset
 from convodrive.motion.channels import BLENDSHAPE_INDEX
 from convodrive.motion.npz import load_clip
 from tests.conftest import run_cli
-from tests.pulse import MIC, MONITOR, SPEAKER, dialogue_halves
+from tests.pulse import MIC, MONITOR, SPEAKER, PulseRig, dialogue_halves
 
 pytestmark = [pytest.mark.pulseaudio, pytest.mark.live, pytest.mark.espeak]
 
@@ -237,10 +239,12 @@ def test_self_stream_that_stops_mid_sentence(pulse, tmp_path: Path) -> None:
     assert loud_heard == pytest.approx(loud_sent, abs=0.1), "the half sentence was played, and only once"
 
 
-def test_microphone_that_disappears(pulse, tmp_path: Path) -> None:
-    """The partner talks into a microphone that is unplugged mid-run: one line in the report, the
-    run goes on to its end with a silent partner."""
-    words = speak("Yes, I saw it yesterday, and it looked great.", voice="en-us+f3", rate=170)
+def _partner_on_the_mic(
+    pulse: PulseRig, tmp_path: Path, words: np.ndarray, meanwhile: Callable[[subprocess.Popen], None]
+) -> tuple[dict[str, Any], Path]:
+    """Seven seconds of ``convodrive live`` (the dialogue's self half on the speaker, the record
+    backend) with ``words`` said into the room's microphone from the start; ``meanwhile(run)``
+    acts while it runs. The run's report and its output folder."""
     partner_wav = tmp_path / "partner_talks.wav"
     sf.write(partner_wav, np.concatenate([np.zeros(8000, np.float32), words, np.zeros(48000, np.float32)]), 16000)
     self_wav, _ = dialogue_halves(tmp_path / "in", seconds=7.0)
@@ -252,18 +256,30 @@ def test_microphone_that_disappears(pulse, tmp_path: Path) -> None:
     )  # fmt: skip
     talking = None
     try:
-        assert "live at 30 fps" in run.stderr.readline()  # the run is listening
+        assert run.stderr is not None and "live at 30 fps" in run.stderr.readline()  # the run is listening
         talking = pulse.room.play(partner_wav, "room")
-        time.sleep(4.0)
-        pulse.room.stop()  # the microphone's server goes away, as an unplugged USB microphone does
+        meanwhile(run)
         stdout, stderr = run.communicate(timeout=60)
     finally:
+        run.send_signal(signal.SIGCONT)
         if talking is not None:
             talking.kill()
         if run.poll() is None:
             run.kill()
     assert run.returncode == 0, stderr
-    report = json.loads((out / "run_report.json").read_text())
+    return json.loads((out / "run_report.json").read_text()), out
+
+
+def test_microphone_that_disappears(pulse: PulseRig, tmp_path: Path) -> None:
+    """The partner talks into a microphone that is unplugged mid-run: one line in the report, the
+    run goes on to its end with a silent partner."""
+
+    def unplug(run: subprocess.Popen) -> None:
+        time.sleep(4.0)
+        pulse.room.stop()  # the microphone's server goes away, as an unplugged USB microphone does
+
+    words = speak("Yes, I saw it yesterday, and it looked great.", voice="en-us+f3", rate=170)
+    report, out = _partner_on_the_mic(pulse, tmp_path, words, unplug)
     partner = report["live"]["partner"]
     assert partner["lost"], partner
     assert partner["input_latency_ms"] <= 12.0, partner  # opened at 10 ms: PulseAudio calls back every 5 ms
@@ -277,42 +293,25 @@ def test_microphone_that_disappears(pulse, tmp_path: Path) -> None:
     assert np.all(vad[lost_frame + 30 :] == 0), "and is silent after it went away (delay and hangover aside)"
 
 
-def test_a_stopped_run_keeps_its_microphone_and_speaker(pulse, tmp_path: Path) -> None:
+def test_a_stopped_run_keeps_its_microphone_and_speaker(pulse: PulseRig, tmp_path: Path) -> None:
     """The run itself is stopped for a second (SIGSTOP, as a process starved of CPU is) while the
     microphone and the speaker go on: no callbacks came, but the silence was the run's, not the
     devices', so neither is given up (a loaded CI machine once had the microphone lost at a run's
     very end; a stop of a second had the speaker given up for the rest of the run)."""
+
+    def stop_for_a_second(run: subprocess.Popen) -> None:
+        time.sleep(2.0)
+        run.send_signal(signal.SIGSTOP)
+        time.sleep(1.0)
+        run.send_signal(signal.SIGCONT)
+
     words = speak(  # the partner talks through the whole run
         "Yes, I saw it yesterday, and it looked great. Then we walked home together along the river, "
         "talking about the weather, the long winter and the little boats on the water.",
         rate=150,
     )
-    partner_wav = tmp_path / "partner_talks.wav"
-    sf.write(partner_wav, np.concatenate([np.zeros(8000, np.float32), words, np.zeros(48000, np.float32)]), 16000)
-    self_wav, _ = dialogue_halves(tmp_path / "in", seconds=7.0)
-    out = tmp_path / "out"
-    run = subprocess.Popen(
-        [sys.executable, "-m", "convodrive.cli.main", "live", "--self", str(self_wav), "--partner", MIC,
-         "--play", SPEAKER, "--seconds", "7", "--backend", "record", "--out", str(out)],
-        env={**os.environ, **pulse.env}, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
-    talking = None
-    try:
-        assert run.stderr is not None and "live at 30 fps" in run.stderr.readline()
-        talking = pulse.room.play(partner_wav, "room")
-        time.sleep(2.0)
-        run.send_signal(signal.SIGSTOP)
-        time.sleep(1.0)
-        run.send_signal(signal.SIGCONT)
-        stdout, stderr = run.communicate(timeout=60)
-    finally:
-        run.send_signal(signal.SIGCONT)
-        if talking is not None:
-            talking.kill()
-        if run.poll() is None:
-            run.kill()
-    assert run.returncode == 0, stderr
-    live = json.loads((out / "run_report.json").read_text())["live"]
+    report, out = _partner_on_the_mic(pulse, tmp_path, words, stop_for_a_second)
+    live = report["live"]
     partner = live["partner"]
     assert partner["lost"] is None and partner["losses"] == 0, live["events"]
     assert live["playback"]["stopped"] is None, live["events"]  # nor its speaker
