@@ -23,12 +23,15 @@
 # corpus's audio is). FGD uses the embedder shipped in convodrive/eval/fgd_model/ (made by
 # scripts/train_fgd.sh when missing) or FGD_MODEL=DIR; SAMPLES (default 2) sets the takes per
 # test conversation, MAX_CONVERSATIONS=N scores only the first N (default: all).
-# REAL_VOICES=1 (see scripts/train_corpus.sh) mixes real recorded voices into the corpus and augments
-# every stage that hears audio (scripts/augment.sh); the card then lists the voices and their licences.
+# REAL_VOICES=1, the default (see scripts/train_corpus.sh), mixes real recorded voices into the corpus
+# (CORPUS_DIR default corpus2hrv) and augments every stage that hears audio (scripts/augment.sh);
+# the card then lists the voices and their licences. REAL_VOICES=0 trains on espeak-ng alone,
+# unaugmented (CORPUS_DIR default corpus2h, the weights shipped before these).
 # Uses CUDA when torch sees a GPU (--device auto). Logs: RUN_DIR/{face,body,distill}.log.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-corpus=${1:-corpus2h}
+export REAL_VOICES=${REAL_VOICES:-1}
+corpus=${1:-$([ "$REAL_VOICES" = 1 ] && echo corpus2hrv || echo corpus2h)}
 runs=${2:-runs/a2p-small}
 model=${3:-convodrive/generators/a2p/model}
 bin=$(pwd)/.venv/bin

@@ -1,9 +1,10 @@
 """Every shipped generator on a real two-voice dialogue of speakers held out of training
 (tests/real_voices.py), measured with eval.behaviour against the true turns (issue 32, item 5).
 
-Asserted where the figures hold today: clean audio, every generator; -12 dB bleed both ways,
-procedural and probtalk (its weights learned recorded voices with bleed augmented). a2p's figures
-with bleed do not hold yet (issue 32, item 3): they are printed, not asserted.
+Asserted for every generator, on clean audio and with -12 dB bleed both ways (the learned models'
+weights learned recorded voices, bleed among the augmentations), at the targets but one: with
+bleed, a2p keeps the mouth shut on 96 % of the frames where only the partner speaks (its weights
+before these: 15 %), short of the 97 % asked; asserted at 95 %, so a return of the old flaw fails.
 """
 
 from __future__ import annotations
@@ -23,6 +24,8 @@ pytestmark = [require("onnxruntime")]
 JAW_R, SHUT_SILENT, SHUT_PARTNER, HEAD_RATIO = (
     TARGETS[k] for k in ("jaw_r", "shut_self_silent", "shut_only_partner", "head_talk_listen")
 )
+BLEED_SHUT_PARTNER = {"a2p": 0.95}
+"""Where a generator is asserted below the target with bleed (the module's docstring says why)."""
 
 
 def _generator(name: str):  # noqa: ANN202
@@ -54,7 +57,7 @@ def test_every_generator_on_real_voices(name: str, real_dialogue) -> None:  # no
     assert clean["jaw_r"] >= JAW_R
     assert clean["shut_self_silent"] >= SHUT_SILENT and clean["shut_only_partner"] >= SHUT_PARTNER
     assert clean["head_talk_listen"] >= HEAD_RATIO
-    if name != "a2p":
-        assert bleed["jaw_r"] >= JAW_R
-        assert bleed["shut_self_silent"] >= SHUT_SILENT and bleed["shut_only_partner"] >= SHUT_PARTNER
-        assert bleed["head_talk_listen"] >= HEAD_RATIO
+    assert bleed["jaw_r"] >= JAW_R
+    assert bleed["shut_self_silent"] >= SHUT_SILENT
+    assert bleed["shut_only_partner"] >= BLEED_SHUT_PARTNER.get(name, SHUT_PARTNER)
+    assert bleed["head_talk_listen"] >= HEAD_RATIO
