@@ -24,14 +24,14 @@
 # scripts/train_fgd.sh when missing) or FGD_MODEL=DIR; SAMPLES (default 2) sets the takes per
 # test conversation, MAX_CONVERSATIONS=N scores only the first N (default: all).
 # REAL_VOICES=1, the default (see scripts/train_corpus.sh), mixes real recorded voices into the corpus
-# (CORPUS_DIR default corpus2hrv) and augments every stage that hears audio (scripts/augment.sh);
+# (CORPUS_DIR default corpus2hrv) and augments every stage that hears audio (scripts/real_voices_recipe.sh);
 # the card then lists the voices and their licences. REAL_VOICES=0 trains on espeak-ng alone,
 # unaugmented (CORPUS_DIR default corpus2h, the weights shipped before these).
 # Uses CUDA when torch sees a GPU (--device auto). Logs: RUN_DIR/{face,body,distill}.log.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-export REAL_VOICES=${REAL_VOICES:-1}
-corpus=${1:-$([ "$REAL_VOICES" = 1 ] && echo corpus2hrv || echo corpus2h)}
+source scripts/real_voices_recipe.sh  # REAL_VOICES, default_corpus, augment
+corpus=${1:-$default_corpus}
 runs=${2:-runs/a2p-small}
 model=${3:-convodrive/generators/a2p/model}
 bin=$(pwd)/.venv/bin
@@ -83,7 +83,6 @@ train_all() { # the face and body sides at once, then both students distilled
 }
 
 scripts/train_corpus.sh "$corpus"
-source scripts/augment.sh  # augment=(...) with REAL_VOICES=1
 [ "${SHIP_ONLY:-0}" = 1 ] || train_all
 if [ "${TRAIN_ONLY:-0}" = 1 ]; then echo "train_a2p: trained in $runs (TRAIN_ONLY: nothing exported)"; exit 0; fi
 trained=$(date +%s)

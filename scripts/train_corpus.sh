@@ -7,7 +7,7 @@
 # REAL_VOICES=1 also pairs real recorded voices into dialogues (VOICE_HOURS, default 0.5 h), from
 # the Debian packages scripts/real_voices.sh fetches: the CC-BY speakers only (asterisk-it,
 # asterisk-ru), never the tests' held-out ones (tests/real_voices.py: HELD_OUT). The train scripts
-# then augment both channels (scripts/augment.sh). The manifest and the model card list each
+# then augment both channels (scripts/real_voices_recipe.sh). The manifest and the model card list each
 # source with its licence and hours. HOURS (default 2) sets the espeak-ng hours.
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -18,20 +18,19 @@
 # SHIP_ONLY=1 trains nothing (RUN_DIR's stages are done): it exports, compares and ships;
 # TRAIN_ONLY=1 stops after training (train on a GPU machine, ship where the corpus's audio is).
 # REAL_VOICES=1, the default (see scripts/train_corpus.sh), mixes real recorded voices into the corpus
-# (CORPUS_DIR default corpus2hrv) and augments every stage that hears audio (scripts/augment.sh);
+# (CORPUS_DIR default corpus2hrv) and augments every stage that hears audio (scripts/real_voices_recipe.sh);
 # the card then lists the voices and their licences. REAL_VOICES=0 trains on
 # espeak-ng alone, unaugmented (CORPUS_DIR default corpus2h, the weights shipped before these).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-export REAL_VOICES=${REAL_VOICES:-1}
-corpus=${1:-$([ "$REAL_VOICES" = 1 ] && echo corpus2hrv || echo corpus2h)}
+source scripts/real_voices_recipe.sh  # REAL_VOICES, default_corpus, augment
+corpus=${1:-$default_corpus}
 runs=${2:-runs/probtalk-small}
 threads=${THREADS:-$(nproc)}
 bin=.venv/bin
 model=convodrive/generators/probtalk/model
 started=$(date +%s)
 scripts/train_corpus.sh "$corpus"
-source scripts/augment.sh  # augment=(...) with REAL_VOICES=1
 
 # Each stage: its steps, the learning rate decaying over them (the preset's warm-up is 20 steps).
 train() {
