@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 
+from convodrive.audio.live.capture import LOST_SECONDS
 from convodrive.audio.synth import speak
 from convodrive.eval.sync import HOP_SECONDS, level_db, mouth_onsets, pair_onsets, speech_onsets
 from convodrive.motion.channels import BLENDSHAPE_INDEX
@@ -270,27 +271,45 @@ def _partner_on_the_mic(
     return json.loads((out / "run_report.json").read_text()), out
 
 
-def test_microphone_that_disappears(pulse: PulseRig, tmp_path: Path) -> None:
-    """The partner talks into a microphone that is unplugged mid-run: one line in the report, the
-    run goes on to its end with a silent partner."""
+def _talk_through_the_run() -> np.ndarray:
+    return speak(
+        "Yes, I saw it yesterday, and it looked great. Then we walked home together along the river, "
+        "talking about the weather, the long winter and the little boats on the water.",
+        rate=150,
+    )
 
-    def unplug(run: subprocess.Popen) -> None:
-        time.sleep(4.0)
+
+def test_microphone_that_hangs_then_disappears(pulse: PulseRig, tmp_path: Path) -> None:
+    """The partner talks into a microphone whose audio server hangs for 3 s (SIGSTOP: it neither
+    delivers nor answers), and that is later unplugged: the hang is given up only after
+    ``LOST_SECONDS`` of silence and taken back when the server answers; the unplug ends the stream
+    at once; the run goes on to its end with a silent partner, each loss one line in the report."""
+    hang_at, hang_for = 1.0, 3.0
+
+    def hang_then_unplug(run: subprocess.Popen) -> None:
+        time.sleep(hang_at)
+        pulse.room.process.send_signal(signal.SIGSTOP)
+        time.sleep(hang_for)
+        pulse.room.process.send_signal(signal.SIGCONT)
+        time.sleep(1.0)
         pulse.room.stop()  # the microphone's server goes away, as an unplugged USB microphone does
 
-    words = speak("Yes, I saw it yesterday, and it looked great.", voice="en-us+f3", rate=170)
-    report, out = _partner_on_the_mic(pulse, tmp_path, words, unplug)
-    partner = report["live"]["partner"]
-    assert partner["lost"], partner
+    # (That the partner is heard through this microphone while it works: the stopped-run test.)
+    report, out = _partner_on_the_mic(pulse, tmp_path, _talk_through_the_run(), hang_then_unplug)
+    partner, events = report["live"]["partner"], report["live"]["events"]
     assert partner["input_latency_ms"] <= 12.0, partner  # opened at 10 ms: PulseAudio calls back every 5 ms
     assert {"late_blocks", "late_ms", "late_dropped_ms"} <= partner.keys()
-    lost = [e for e in report["live"]["events"] if e["event"].startswith("partner input lost")]
-    assert len(lost) == 1, report["live"]["events"]
+    said = [e["event"] for e in events if e["event"].startswith("partner input")]
+    assert len(said) == 3 and "back" in said[1], events
+    assert f"nothing for {LOST_SECONDS:g} s" in said[0] and "its stream ended" in said[2], events
+    assert partner["lost"] and "its stream ended" in partner["lost"], partner
+    hung, back, unplugged = (e["time"] for e in events if e["event"].startswith("partner input"))
+    # Given up LOST_SECONDS into the hang, not sooner: back (as the server answers) the rest after.
+    assert back - hung <= hang_for - LOST_SECONDS + 0.5, events
+    assert partner["longest_callback_gap_ms"] >= 1000 * (hang_for - 0.5), partner  # the report shows the hang
     assert report["frames"] == pytest.approx(7 * 30, abs=10), "the run went on to the end of the self voice"
     vad = load_clip(out / "motion.npz").vad[:, 1]
-    lost_frame = int(lost[0]["time"] * 30)
-    assert vad[:lost_frame].max() > 0.5, "the partner was heard while the microphone worked"
-    assert np.all(vad[lost_frame + 30 :] == 0), "and is silent after it went away (delay and hangover aside)"
+    assert np.all(vad[int(unplugged * 30) + 30 :] == 0), "and is silent after it went away (delay and hangover aside)"
 
 
 def test_a_stopped_run_keeps_its_microphone_and_speaker(pulse: PulseRig, tmp_path: Path) -> None:
@@ -305,12 +324,7 @@ def test_a_stopped_run_keeps_its_microphone_and_speaker(pulse: PulseRig, tmp_pat
         time.sleep(1.0)
         run.send_signal(signal.SIGCONT)
 
-    words = speak(  # the partner talks through the whole run
-        "Yes, I saw it yesterday, and it looked great. Then we walked home together along the river, "
-        "talking about the weather, the long winter and the little boats on the water.",
-        rate=150,
-    )
-    report, out = _partner_on_the_mic(pulse, tmp_path, words, stop_for_a_second)
+    report, out = _partner_on_the_mic(pulse, tmp_path, _talk_through_the_run(), stop_for_a_second)
     live = report["live"]
     partner = live["partner"]
     assert partner["lost"] is None and partner["losses"] == 0, live["events"]

@@ -38,8 +38,15 @@ PARTNER_LATENCY_SECONDS = 0.01
 comes as bursts of four blocks every 20 ms (arrival age p90 16 ms under load), 10 ms as one block
 every 5 ms (p90 7 ms); ``bench.bench_capture`` measures it. A recording (``--monitor``), timed
 afterwards, keeps the roomier 20 ms."""
-LOST_SECONDS = 0.5
-"""A microphone silent (no callbacks at all) for this long has gone away."""
+LOST_SECONDS = 2.0
+"""A microphone silent (no callbacks at all) for this long has gone away. A pulled USB
+microphone, or a PulseAudio server that went away, ends its stream at once (``finished``), so
+this verdict is for a device that hangs; a busy audio server can hold a stream's callbacks for
+over half a second (a loaded CI machine did, and the run gave up a working microphone). The run
+never waits on a silent microphone meanwhile (overdue audio is filled with silence), so a later
+verdict costs only its report line coming later."""
+WATCH_GAP = 0.25
+"""Two looks at ``lost`` further apart than this: the run itself was away (starved or stopped)."""
 START_SECONDS = 5.0
 """An audio server may take a second or so to start a stream; past this, it never will."""
 ANCHORS = 32
@@ -124,10 +131,12 @@ class MicrophoneInput(PartnerInput):
         self._lost: str | None = None
         self._quiet_since: float | None = None
         """When the microphone was found silent (lost, but it may come back)."""
-        self._watch = Watch(max_gap=LOST_SECONDS / 2)
+        self._watch = Watch(max_gap=WATCH_GAP)
         """Since when ``lost`` has been asked often enough to have seen callbacks, had there been any."""
         self.portaudio_overflows = 0
         self.callbacks = 0
+        self.longest_gap = 0.0
+        """The longest time between two callbacks (a stall of the audio server, or of this process)."""
         self._closed = False
         try:
             self._stream = sd.InputStream(
@@ -154,6 +163,8 @@ class MicrophoneInput(PartnerInput):
         self.callbacks += 1
         if status.input_overflow:
             self.portaudio_overflows += 1
+        if self._last_call is not None:
+            self.longest_gap = max(self.longest_gap, now - self._last_call)
         if self._last_call is not None and now - self._last_call > 5 * BLOCK_SECONDS:
             self._anchors.clear()  # a stall moved the time line: start over
         self._last_call = now
@@ -207,6 +218,7 @@ class MicrophoneInput(PartnerInput):
             "overruns": self.ring.overruns,
             "overrun_ms": round(1000.0 * self.ring.overrun_samples / self.rate, 1),
             "portaudio_overflows": self.portaudio_overflows,
+            "longest_callback_gap_ms": round(1000.0 * self.longest_gap, 1),
         }
 
 

@@ -34,7 +34,7 @@ def test_live_dialogue_partner_on_a_microphone(pulse: PulseRig, reachy_mockup: D
     assert latency is not None and latency["count"] >= 0.75 * frames, (latency, frames)
     assert 0 < latency["p50"] <= latency["p99"] and math.isfinite(latency["p99"]), latency
     partner = run.report["live"]["partner"]
-    assert not partner["lost"], partner
+    assert not partner["lost"], (partner["lost"], partner["longest_callback_gap_ms"], partner.get("events"))
     assert latency["p50"] >= run.report["generator"]["lookahead_ms"], "a frame waits for its look-ahead"
     # The partner was heard (listening frames) and the robot was driven as in a drive.
     heard = report["liveliness"]["commanded"]
