@@ -164,9 +164,10 @@ class MicrophoneInput(PartnerInput):
         if status.input_overflow:
             self.portaudio_overflows += 1
         if self._last_call is not None:
-            self.longest_gap = max(self.longest_gap, now - self._last_call)
-        if self._last_call is not None and now - self._last_call > 5 * BLOCK_SECONDS:
-            self._anchors.clear()  # a stall moved the time line: start over
+            gap = now - self._last_call
+            self.longest_gap = max(self.longest_gap, gap)
+            if gap > 5 * BLOCK_SECONDS:
+                self._anchors.clear()  # a stall moved the time line: start over
         self._last_call = now
         adc = time_info.inputBufferAdcTime
         age = (time_info.currentTime - adc) if adc > 0 else frames / self.rate
