@@ -4,7 +4,8 @@ Prints JSON with
 - ``rtf``: real-time factor of ``generate`` (lip, face, guide poses, body: all of it) on
   ``--seconds`` of speech-like dialogue (20 s: the reference's longest input), for each preset
   (``paper``, ``small``) and precision (fp32, int8): the generator's defaults (DDIM, 10 steps for
-  the body and 50 for the face, guidance on the face and on the body's audio), the distilled sampler, and DDIM at
+  the body and 50 for the face, guidance on the face and on the body's audio), the distilled sampler,
+  DPM-Solver++ on the teachers (``dpm``: its defaults, 4 body and 8 face steps), and DDIM at
   ``--ddim`` steps for both (classifier-free guidance on both, both halves one batch, as the
   reference samples), ``--threads`` ONNX Runtime threads.
   Speed does not depend on the weights, so the graphs are exported from fresh networks
@@ -14,7 +15,7 @@ Prints JSON with
   torch: each token by re-running the whole prefix and re-encoding its audio (as the reference
   samples), and one cached step a token; and through the ONNX step graph with its cache;
 - ``live``: look-ahead, a window's compute (median and worst) and their sum, the latency (target
-  <= 0.5 s), with the defaults of live mode (DDIM, 20 face steps) and the distilled sampler;
+  <= 0.5 s), with the defaults of live mode (DDIM, 20 face steps), the distilled sampler and dpm;
 - ``long`` (with ``--model``, the first one, ``--long-minutes`` of the bundled dialogue looped): the largest frame
   change (pose and face) at a window seam against the largest inside windows, and the peak of
   traced memory after the first minute against at the end (constant memory);
@@ -196,6 +197,7 @@ def main() -> int:
             table[label] = {
                 "default": rtf(folder, audio, args.threads),
                 "distilled": rtf(folder, audio, args.threads, sampler="distilled"),
+                "dpm": rtf(folder, audio, args.threads, sampler="dpm"),
             }
             for steps in ddim:  # guidance on face and body, every condition dropped, as the reference samples
                 table[label][f"ddim{steps}"] = rtf(
@@ -223,6 +225,7 @@ def main() -> int:
             label: {
                 "default": live_latency(folder, live_audio, 1),
                 "distilled": live_latency(folder, live_audio, 1, sampler="distilled"),
+                "dpm": live_latency(folder, live_audio, 1, sampler="dpm"),
             }
             for label, folder in folders.items()
         }

@@ -7,10 +7,11 @@ Per generator and dialogue: jaw-envelope correlation, the jaw shut where self is
 only the partner speaks, and head speed talking over listening; then the worst dialogue against
 the targets. Any output gate stays off (the generators' defaults have none). ``--model NAME=DIR``
 runs a generator from another folder, under its own name (``new=probtalk:DIR``), to set a
-retrained model beside the shipped one. No timings: the load average is printed for completeness.
+retrained model beside the shipped one; ``--variant NAME=GENERATOR:KEY=VALUE,...`` one with other
+options (``a2p-dpm=a2p:sampler=dpm``). No timings: the load average is printed for completeness.
 
 Usage: .venv/bin/python bench/bench_real_voices.py [--real N] [--generators procedural,probtalk,a2p]
-       [--model NAME=GENERATOR:DIR ...] [--bleed-db DB] [--seed S]
+       [--model NAME=GENERATOR:DIR ...] [--variant NAME=GENERATOR:KEY=VALUE,... ...] [--bleed-db DB] [--seed S]
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import argparse
 import json
 import os
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -56,15 +58,18 @@ def worst(per_dialogue: dict[str, dict[str, dict[str, float]]]) -> dict[str, dic
     return out
 
 
-def named_generators(names: str, models: list[str]) -> dict[str, Any]:
-    """``procedural,probtalk,a2p`` with their defaults, plus each ``NAME=GENERATOR:DIR``."""
+def named_generators(names: str, models: Sequence[str], variants: Sequence[str] = ()) -> dict[str, Any]:
+    """``procedural,probtalk,a2p`` with their defaults, plus each ``NAME=GENERATOR:DIR`` and each
+    ``NAME=GENERATOR:KEY=VALUE,...`` (options)."""
     made = {name: load_plugin(GENERATOR_GROUP, name)({}) for name in names.split(",") if name}
-    for spec in models:
-        name, _, rest = spec.partition("=")
-        kind, _, folder = rest.partition(":")
-        if not (name and kind and folder):
-            raise SystemExit(f"bench_real_voices: --model {spec}: expected NAME=GENERATOR:DIR")
-        made[name] = load_plugin(GENERATOR_GROUP, kind)({"model": folder})
+    for flag, specs in (("--model", models), ("--variant", variants)):
+        for spec in specs:
+            name, _, rest = spec.partition("=")
+            kind, _, value = rest.partition(":")
+            if not (name and kind and value):
+                raise SystemExit(f"bench_real_voices: {flag} {spec}: expected NAME=GENERATOR:{value or 'VALUE'}")
+            options = dict(pair.split("=", 1) for pair in value.split(",")) if flag == "--variant" else {"model": value}
+            made[name] = load_plugin(GENERATOR_GROUP, kind)(options)
     return made
 
 
@@ -73,10 +78,17 @@ def main() -> int:
     parser.add_argument("--real", type=int, default=4, metavar="N", help="one-minute dialogues (default 4)")
     parser.add_argument("--generators", default="procedural,probtalk,a2p")
     parser.add_argument("--model", action="append", default=[], metavar="NAME=GENERATOR:DIR")
+    parser.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        metavar="NAME=GENERATOR:KEY=VALUE,...",
+        help="a generator with options",
+    )
     parser.add_argument("--bleed-db", type=float, default=-12.0)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    generators = named_generators(args.generators, args.model)
+    generators = named_generators(args.generators, args.model, args.variant)
     sets = real_sets(args.real)
     results: dict[str, Any] = {}
     for name, generator in generators.items():

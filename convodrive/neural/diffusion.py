@@ -6,12 +6,15 @@ so a model is sampled on the schedule it learned. The loops:
 - ``ddim_sample``: DDIM with any number of steps, spaced "trailing" (the first step starts at the
   last diffusion step, so even one step starts from pure noise); deterministic at ``eta`` 0,
   adding fresh noise at each step as DDPM does at ``eta`` 1.
+- ``dpm_solver_sample``: DPM-Solver++(2M) (Lu et al. 2022) on given steps (DDIM's trailing ones,
+  or ``log_snr_timesteps``): its first step is DDIM's, each later one extrapolates from the last
+  two x0 in log-SNR, a second-order solver of the same ODE for one call a step.
 - ``consistency_sample``: a distilled consistency model, which maps any noisy point straight to
   x0; with more than one step, x0 is noised again to the next (lower) step with fresh noise.
 - ``guided``: classifier-free guidance with the conditional and unconditional passes as one
   batch (the first half conditional), combined as ``uncond + scale * (cond - uncond)`` on x0.
 
-Both loops pin known frames (the previous window's last frames): every x0 gets them copied in, so
+All loops pin known frames (the previous window's last frames): every x0 gets them copied in, so
 a window continues its predecessor exactly (continuation by inpainting; the networks also see
 them as an input). Random numbers come from one generator per take (row), drawn in a fixed
 order, so a take is the same whether it runs alone or beside others.
@@ -138,6 +141,66 @@ def ddim_sample(
             x = stochastic_ddim_step(x, x0, a, a_next, eta, noise_like(rngs, x.shape[1:])).astype(np.float32)
         else:
             x = ddim_step(x, x0, a, a_next).astype(np.float32)
+    return x0
+
+
+def log_snr(alpha_bar: np.ndarray) -> np.ndarray:
+    """lambda = log(alpha / sigma) (half the log signal-to-noise ratio), DPM-Solver's time variable."""
+    return np.asarray(0.5 * np.log(alpha_bar / (1 - alpha_bar)))
+
+
+def log_snr_timesteps(count: int, alpha_bar: np.ndarray, floor: float = 1e-4) -> np.ndarray:
+    """``count`` diffusion steps evenly spaced in log-SNR, descending, the last step 0. They start at
+    the last step whose signal fraction reaches ``floor``: the cosine schedule's clipped tail sends
+    log-SNR from -4.6 to -9.9 in its last 7 steps, where x is noise all the same, and spacing over
+    it would spend calls there. Raises ValueError where steps would repeat (above 40 on the 1000-step
+    cosine schedule: log-SNR moves fast between its first and last few steps)."""
+    if count < 1:
+        raise ValueError(f"steps must be at least 1, got {count}")
+    lam = log_snr(alpha_bar)
+    top = int(np.nonzero(alpha_bar >= floor)[0][-1])
+    if count == 1:
+        return np.array([top], np.int64)
+    # lambda falls with the step; searchsorted wants it rising
+    rising = lam[: top + 1][::-1]
+    targets = np.linspace(lam[top], lam[0], count)
+    index = np.clip(np.searchsorted(rising, targets), 1, top)
+    nearer = np.where(targets - rising[index - 1] < rising[index] - targets, index - 1, index)
+    times = (top - nearer).astype(np.int64)
+    times[0], times[-1] = top, 0
+    if np.any(np.diff(times) >= 0):
+        raise ValueError(f"{count} steps evenly spaced in log-SNR would repeat steps of this schedule")
+    return times
+
+
+def dpm_solver_sample(
+    x0_fn: X0Fn,
+    noise: np.ndarray,
+    times: np.ndarray,
+    alpha_bar: np.ndarray,
+    known: np.ndarray | None = None,
+    known_mask: np.ndarray | None = None,
+) -> np.ndarray:
+    """x0 (B, T, D) by DPM-Solver++(2M) from ``noise``, one call at each of ``times`` (descending,
+    e.g. ``ddim_timesteps`` or ``log_snr_timesteps``); deterministic. The last x0 is the answer, as
+    with ``ddim_sample``, whose first step is also this one's."""
+    x = noise.astype(np.float32)
+    lam = log_snr(alpha_bar)
+    x0 = x
+    earlier: tuple[np.ndarray, float] | None = None
+    for i, t in enumerate(times):
+        x0 = pin(x0_fn(x, np.full(len(x), t, np.int64)).astype(np.float32), known, known_mask)
+        if i + 1 == len(times):
+            break
+        a, a_next = float(alpha_bar[t]), float(alpha_bar[times[i + 1]])
+        h = float(lam[times[i + 1]] - lam[t])
+        slope = x0
+        if earlier is not None:  # second order: extrapolate x0 along log-SNR from the last two
+            x0_before, h_before = earlier
+            half_ratio = h / (2 * h_before)
+            slope = (1 + half_ratio) * x0 - half_ratio * x0_before
+        x = (((1 - a_next) / (1 - a)) ** 0.5 * x - a_next**0.5 * np.expm1(-h) * slope).astype(np.float32)
+        earlier = (x0, h)
     return x0
 
 

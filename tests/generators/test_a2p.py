@@ -130,6 +130,11 @@ def test_guidance_and_sampler_options_change_the_motion(model: Path) -> None:
     )  # at scale 1 there is no unconditional pass to differ
     distilled = A2PGenerator({"model": str(model), "sampler": "distilled", "steps": 1}).generate(audio)[0]
     assert np.abs(base.pose - distilled.pose).max() > 1e-5
+    # DPM-Solver++ runs the same teachers on other steps: another path, deterministic.
+    dpm = {"model": str(model), "sampler": "dpm", "steps": 2}
+    dpm_take = A2PGenerator(dpm).generate(audio)[0]
+    assert np.abs(base.pose - dpm_take.pose).max() > 1e-5
+    np.testing.assert_array_equal(dpm_take.face, A2PGenerator(dpm).generate(audio)[0].face)
     # The students' face may take its own number of steps; by default as many as the body.
     default = A2PGenerator({"model": str(model), "sampler": "distilled", "steps": 2})
     assert default.report()["face_steps"] == 2 and default.report()["steps"] == 2
@@ -149,6 +154,8 @@ def test_ddim_is_the_default_and_its_face_takes_more_steps_than_its_body(model: 
     students = A2PGenerator({"model": str(model), "sampler": "distilled"}).report()
     assert students["guidance"]["body"] == 1.0 and students["body_guidance_on"] == "all"
     assert A2PGenerator({"model": str(model), "mode": "live"}).report()["face_steps"] == 20
+    dpm = A2PGenerator({"model": str(model), "sampler": "dpm"}).report()
+    assert (dpm["steps"], dpm["face_steps"], dpm["guidance"]["body"]) == (4, 8, 3.0)
     assert A2PGenerator({"model": str(model), "mode": "live", "face_steps": 7}).report()["face_steps"] == 7
 
 
@@ -195,6 +202,8 @@ def test_bad_options_and_folders_are_one_line(model: Path, tmp_path: Path) -> No
         A2PGenerator({"model": str(model), "sampler": "distilled", "steps": 11})  # the tiny grid: 1000 steps / 100
     with pytest.raises(UserError, match="face_steps must be at most 10"):
         A2PGenerator({"model": str(model), "sampler": "distilled", "face_steps": 11})
+    with pytest.raises(UserError, match="face_steps 60 is too many for the dpm sampler"):
+        A2PGenerator({"model": str(model), "sampler": "dpm", "face_steps": 60})
     with pytest.raises(UserError, match="mode"):
         A2PGenerator({"model": str(model), "mode": "batch"})
     meta = json.loads((model / "model.json").read_text())
@@ -210,6 +219,7 @@ def test_bad_options_and_folders_are_one_line(model: Path, tmp_path: Path) -> No
     with pytest.raises(InputFileError, match="export the distill stage"):
         A2PGenerator({"model": str(teacher_only), "sampler": "distilled"})
     A2PGenerator({"model": str(teacher_only)})  # the teachers alone run DDIM, the default
+    A2PGenerator({"model": str(teacher_only), "sampler": "dpm"})  # and DPM-Solver++
 
 
 PROBE = """

@@ -1,5 +1,5 @@
 """The a2p weights shipped in the package: they load verified, fit the package's 30 MB with a card
-that says how they were made, which graphs are int8 and what int8 costs, both samplers run them,
+that says how they were made, which graphs are int8 and what int8 costs, every sampler runs them,
 and the motion they make on the bundled dialogue talks with self's voice."""
 
 from __future__ import annotations
@@ -42,11 +42,11 @@ def test_the_shipped_folder_is_verified_small_enough_and_carded() -> None:
         assert "int8" in card and "MatMul" in card
 
 
-def test_both_samplers_run_the_shipped_graphs() -> None:
+def test_every_sampler_runs_the_shipped_graphs() -> None:
     one = AudioSource(REPO / "samples" / "dialogue.wav").read_all()
     clips = {
         sampler: A2PGenerator({"sampler": sampler, "steps": 2}).generate(one, seed=0)[0]
-        for sampler in ("distilled", "ddim")
+        for sampler in ("distilled", "ddim", "dpm")
     }
     for sampler, clip in clips.items():
         assert abs(clip.num_frames - one.duration * 30) <= 1, sampler
@@ -55,7 +55,8 @@ def test_both_samplers_run_the_shipped_graphs() -> None:
     assert not np.allclose(clips["distilled"].face, clips["ddim"].face), "the teacher and student graphs differ"
 
 
-def test_the_shipped_model_talks_with_self_and_rests_while_listening() -> None:
+@pytest.mark.parametrize("sampler", ["ddim", "dpm"])
+def test_the_shipped_model_talks_with_self_and_rests_while_listening(sampler: str) -> None:
     """Issue 13's must-show on the bundled dialogue: the jaw follows self's voice and shuts in self's
     silences, the arms move at least twice as fast while self talks as while it only listens, the
     head 1.9 times. Issue 13 asked twice for the head; the weights that learned recorded voices
@@ -63,10 +64,15 @@ def test_the_shipped_model_talks_with_self_and_rests_while_listening() -> None:
     guide 1.96, 1.95; the weights before: 2.21, 2.07), 1.89 on the corpus's 7 espeak-ng test
     conversations (before: 1.73) and at least 2.5 on four real dialogues (before: 2.3;
     tests/eval/test_real_voices.py asserts 2 there). Speeds are pooled over three takes: the guide
-    poses are sampled, and one take in a few gestures through a listening turn."""
+    poses are sampled, and one take in a few gestures through a listening turn. DPM-Solver++ in its
+    4 and 8 steps holds the same: head 2.03 (seed 1: 2.07), the mouth shut in 92-94 % of self's
+    silences (seed 1: 91-93 %)."""
     audio = AudioSource(REPO / "samples" / "dialogue.wav").read_all()
     segments = load_segments(REPO / "samples" / "dialogue.json")
-    takes = [behaviour_figures(clip, audio, segments) for clip in A2PGenerator().generate(audio, seed=0, num_samples=3)]
+    takes = [
+        behaviour_figures(clip, audio, segments)
+        for clip in A2PGenerator({"sampler": sampler}).generate(audio, seed=0, num_samples=3)
+    ]
 
     def pooled(part: str, key: str) -> float:
         return float(np.mean([figures[part][key] for figures in takes]))
