@@ -72,7 +72,7 @@ train_all() { # the face and body sides at once, then both students distilled
         echo "train_a2p: a stage failed; see $runs/face.log and $runs/body.log" >&2
         exit "$status"
     fi
-    n=$(stage_steps distill 300)
+    n=$(stage_steps distill 900)
     distill=("a2p" --stage distill --corpus "$corpus" --preset small --seed 0 --no-progress --steps "$n"
         --set "decay_steps=$n" --set "warmup_steps=$(steps 20)" --set lr=2e-4 --set val_every=$((n / 4 + 1))
         --out "$runs/distill" --init "$runs/face" --init "$runs/body" "${augment[@]}")
