@@ -62,13 +62,14 @@ def named_generators(names: str, models: Sequence[str], variants: Sequence[str] 
     """``procedural,probtalk,a2p`` with their defaults, plus each ``NAME=GENERATOR:DIR`` and each
     ``NAME=GENERATOR:KEY=VALUE,...`` (options)."""
     made = {name: load_plugin(GENERATOR_GROUP, name)({}) for name in names.split(",") if name}
-    for flag, specs in (("--model", models), ("--variant", variants)):
+    for flag, specs, form in (("--model", models, "DIR"), ("--variant", variants, "KEY=VALUE,...")):
         for spec in specs:
             name, _, rest = spec.partition("=")
             kind, _, value = rest.partition(":")
-            if not (name and kind and value):
-                raise SystemExit(f"bench_real_voices: {flag} {spec}: expected NAME=GENERATOR:{value or 'VALUE'}")
-            options = dict(pair.split("=", 1) for pair in value.split(",")) if flag == "--variant" else {"model": value}
+            pairs = [pair.partition("=") for pair in value.split(",")]
+            if not (name and kind and value) or (flag == "--variant" and not all(k and eq for k, eq, _ in pairs)):
+                raise SystemExit(f"bench_real_voices: {flag} {spec}: expected NAME=GENERATOR:{form}")
+            options = {k: v for k, _, v in pairs} if flag == "--variant" else {"model": value}
             made[name] = load_plugin(GENERATOR_GROUP, kind)(options)
     return made
 
