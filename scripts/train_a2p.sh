@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Reproduce the a2p weights shipped in convodrive/generators/a2p/model/ from a fresh clone: a
-# 2-hour bootstrap corpus, the `a2p` recipe's `small` preset stage by stage, consistency
+# 2-hour bootstrap corpus, the `a2p` recipe's `small` preset stage by stage, guidance
 # distillation, ONNX exports in fp32, int8 and "mixed" (int8 but for the denoisers' step graphs,
 # whose error compounds over the sampling steps, and the guide's graphs: an int8 guide cost FD_g
 # body 9.08 against 7.97 with it float; the memories, run once a window, stay int8), a comparison of the

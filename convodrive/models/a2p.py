@@ -36,8 +36,9 @@ the conditional and unconditional memories are one batch and so is every denoisi
 The memory of a window (each layer's cross-attention keys and values, and the FiLM vector of the
 conditions) is computed once (``Denoiser.memory``) and reused by every step (``Denoiser.step``);
 the runtime exports the two as graphs. Distillation (``distill`` stage) copies each denoiser into a
-student that also hears the guidance scale and learns, by consistency distillation from the guided
-teacher's DDIM trajectories, to jump to the clean motion in one to four steps.
+student that also hears the guidance scale and learns from the guided teacher, either its x0 (one
+pass for the teacher's two) or, by consistency distillation, to jump to the clean motion in one to
+four steps (``A2PConfig.distillation``).
 
 Not as the paper: log-mel instead of wav2vec features (aligned with the 30 fps frames, so windows
 stream); rotary positions in frame units on the per-head queries and keys (the reference rotates

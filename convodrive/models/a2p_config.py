@@ -82,6 +82,10 @@ class A2PConfig:
     """Known frames a window continues from (the previous window's last ones); trained up to this."""
     dropout: float = 0.1
     # distillation
+    distillation: str = "consistency"
+    """How the students learn (``convodrive.training.recipes.a2p_distill``): ``consistency``, a
+    few-step sampler of its own on the grid of ``distill_skip``, or ``guidance``, one pass for the
+    guided teacher's two, sampled by DPM-Solver++ as the teachers are."""
     distill_skip: int = 20
     """Diffusion steps between neighbouring points of the consistency-distillation grid."""
     distill_ema: float = 0.95
@@ -96,6 +100,8 @@ class A2PConfig:
         for part in ("face", "body", "lip", "guide"):
             if getattr(self, f"{part}_width") % (2 * getattr(self, f"{part}_heads")):
                 raise ValueError(f"{part}_width must be a multiple of twice {part}_heads (rotary halves)")
+        if self.distillation not in ("consistency", "guidance"):
+            raise ValueError(f"distillation must be consistency or guidance, not {self.distillation!r}")
         if not 0 < self.min_window <= self.window or not 0 <= self.context < self.min_window:
             raise ValueError("need 0 <= context < min_window <= window")
         if self.guide_band < 2 or self.guide_audio_span < 1 or self.guide_seconds < 2:

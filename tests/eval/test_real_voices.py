@@ -2,9 +2,10 @@
 (tests/real_voices.py), measured with eval.behaviour against the true turns (issue 32, item 5).
 
 Asserted for every generator, on clean audio and with -12 dB bleed both ways (the learned models'
-weights learned recorded voices, bleed among the augmentations), at the targets but one: with
-bleed, a2p keeps the mouth shut on 96 % of the frames where only the partner speaks (its weights
-before these: 15 %), short of the 97 % asked; asserted at 95 %, so a return of the old flaw fails.
+weights learned recorded voices, bleed among the augmentations), at the targets. a2p meets the
+bleed's 97 % of shut frames where only the partner speaks since its face's guidance went from 2 to
+1.5 (``GUIDANCE_FACE``: 98.3 % on the worst of four dialogues, 96.2 % at 2; its weights before
+these: 15 %).
 """
 
 from __future__ import annotations
@@ -24,8 +25,6 @@ pytestmark = [require("onnxruntime")]
 JAW_R, SHUT_SILENT, SHUT_PARTNER, HEAD_RATIO = (
     TARGETS[k] for k in ("jaw_r", "shut_self_silent", "shut_only_partner", "head_talk_listen")
 )
-BLEED_SHUT_PARTNER = {"a2p": 0.95}
-"""Where a generator is asserted below the target with bleed (the module's docstring says why)."""
 
 
 def _generator(name: str):  # noqa: ANN202
@@ -59,5 +58,5 @@ def test_every_generator_on_real_voices(name: str, real_dialogue) -> None:  # no
     assert clean["head_talk_listen"] >= HEAD_RATIO
     assert bleed["jaw_r"] >= JAW_R
     assert bleed["shut_self_silent"] >= SHUT_SILENT
-    assert bleed["shut_only_partner"] >= BLEED_SHUT_PARTNER.get(name, SHUT_PARTNER)
+    assert bleed["shut_only_partner"] >= SHUT_PARTNER
     assert bleed["head_talk_listen"] >= HEAD_RATIO

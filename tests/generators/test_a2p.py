@@ -150,7 +150,7 @@ def test_ddim_is_the_default_and_its_face_takes_more_steps_than_its_body(model: 
     ``DDIM_FACE_STEPS``); live mode keeps the face at 20 for its latency."""
     file = A2PGenerator({"model": str(model)}).report()
     assert (file["sampler"], file["steps"], file["face_steps"]) == ("ddim", 10, 50)
-    assert file["guidance"] == {"face": 2.0, "body": 3.0} and file["body_guidance_on"] == "audio"
+    assert file["guidance"] == {"face": 1.5, "body": 3.0} and file["body_guidance_on"] == "audio"
     students = A2PGenerator({"model": str(model), "sampler": "distilled"}).report()
     assert students["guidance"]["body"] == 1.0 and students["body_guidance_on"] == "all"
     assert A2PGenerator({"model": str(model), "mode": "live"}).report()["face_steps"] == 20
@@ -190,6 +190,36 @@ def test_a_model_may_name_its_own_face_student_steps(model: Path, tmp_path: Path
         .generate(audio)[0]
         .face,
     )
+
+
+def test_guidance_distilled_students_are_sampled_as_the_teachers_are(model: Path, tmp_path: Path) -> None:
+    """Students that learned by guidance distillation (model.json's ``distillation``) run by
+    DPM-Solver++ on the teachers' steps, guided on the audio as the teachers are by default; in one
+    step that is the student's x0 at the last step, the consistency sampler's first call too."""
+    own = tmp_path / "guidance"
+    shutil.copytree(model, own)
+    meta = json.loads((own / "model.json").read_text())
+    meta["architecture"].update(distillation="guidance", face_student_steps=3)
+    (own / "model.json").write_text(json.dumps(meta))
+    students = {"model": str(own), "sampler": "distilled"}
+    report = A2PGenerator(students).report()
+    assert (report["steps"], report["face_steps"], report["guidance"]["body"]) == (4, 3, 3.0)
+    assert report["body_guidance_on"] == "audio"
+    audio = dyadic_audio(2.5)
+    one = {"steps": 1, "face_steps": 1, "guidance_body": 2.0}
+    guidance = A2PGenerator({**students, **one}).generate(audio)[0]
+    consistency = A2PGenerator({"model": str(model), "sampler": "distilled", **one}).generate(audio)[0]
+    body = [
+        rep.encode_clip(clip)[:, BODY] for clip in (guidance, consistency)
+    ]  # the pose's jaw and eyes are the face's
+    np.testing.assert_allclose(body[0], body[1], atol=1e-5)
+    assert np.abs(guidance.face - consistency.face).max() > 1e-5  # the face's one step is in log-SNR
+    two = A2PGenerator({**students, "steps": 2, "face_steps": 2}).generate(audio)[0]
+    again = A2PGenerator({**students, "steps": 2, "face_steps": 2}).generate(audio, seed=0)[0]
+    np.testing.assert_array_equal(two.pose, again.pose)
+    assert np.abs(two.pose - guidance.pose).max() > 1e-5
+    # The consistency grid's limit does not bind them: the teachers' schedule does.
+    assert A2PGenerator({**students, "steps": 20}).report()["steps"] == 20
 
 
 def test_bad_options_and_folders_are_one_line(model: Path, tmp_path: Path) -> None:

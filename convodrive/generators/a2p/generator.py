@@ -6,8 +6,10 @@ Each window of audio becomes motion in this order (graphs of ``convodrive.traini
    and the voice activity of self and of the partner;
 2. the face: ``face_memory`` once (the conditional and, for DDIM with guidance, the
    unconditional rows in one batch), then a sampling loop in NumPy (``convodrive.neural.diffusion``)
-   around ``face_step``: the distilled consistency student in a few steps (guidance built in), or
-   the teacher by DDIM with any step count and classifier-free guidance, both halves one batch;
+   around ``face_step``: the teacher by DDIM or DPM-Solver++ with classifier-free guidance, both
+   halves one batch, or the distilled student (guidance built in, one call a step): by
+   DPM-Solver++ as the teachers if it learned by guidance distillation, else by its own
+   consistency sampler (model.json's ``distillation``);
 3. the guide poses: for every second whose audio has been heard (up to half a second past its
    pose frame), ``guide_audio`` embeds its audio, ``guide_step`` samples its residual-VQ codes
    one by one with nucleus sampling and a KV cache that carries on across windows
@@ -65,6 +67,11 @@ DDIM_FACE_STEPS = {"file": 50, "live": 20}
 """The face's DDIM steps by mode. The face keeps improving with steps (FD_g face on the test split
 9.6 at 1 distilled step, 6.4 at 10, 4.4 at 20, 2.9 at 50); live mode stops at 20 to keep its
 latency (look-ahead plus a window's compute) under 0.5 s on 2 cores."""
+GUIDANCE_FACE = 1.5
+"""The face's guidance. Guidance amplifies whatever the face hears, the partner's voice leaking into
+self's microphone too: with -12 dB of bleed on real voices (worst of 4 dialogues) the mouth stayed
+shut on 96.2 % of the frames where only the partner speaks at 2, on 98.3 % at 1.5; on the test
+split FD_g face is 1.05 at 1.5 against 0.943 at 2 (knn 1.1), lip r 0.90 either way."""
 DPM_STEPS, DPM_FACE_STEPS = 4, 8
 """DPM-Solver++(2M)'s steps of the teachers: on the test split the body's 4 (on DDIM's trailing
 steps) and the face's 8 (evenly in log-SNR, down to step 0) score FD_g 8.42 and 1.11 against
@@ -90,8 +97,9 @@ class A2POptions(LearnedOptions):
         "ddim",
         choices=("distilled", "ddim", "dpm"),
         help="ddim: the teachers with classifier-free guidance; dpm: the same teachers by DPM-Solver++(2M), "
-        f"{DPM_STEPS} body and {DPM_FACE_STEPS} face steps for DDIM's quality in file mode; distilled: the consistency students "
-        "(guidance built in, one call a step, coarser)",
+        f"{DPM_STEPS} body and {DPM_FACE_STEPS} face steps for DDIM's quality in file mode; distilled: the students "
+        "(guidance built in, one call a step): guidance-distilled ones (the shipped) by DPM-Solver++ as the teachers, "
+        "consistency-distilled ones by their own sampler",
     )
     steps: int = option(
         0,
@@ -108,17 +116,19 @@ class A2POptions(LearnedOptions):
         high=1000,
         help=f"the face's denoising steps; 0: with ddim {DDIM_FACE_STEPS['file']} ({DDIM_FACE_STEPS['live']} in live mode, for its latency), with dpm {DPM_FACE_STEPS}, distilled the model's own (model.json's face_student_steps)",
     )
-    guidance_face: float = option(2.0, low=1.0, high=20.0, help="classifier-free guidance scale of the face (1: none)")
+    guidance_face: float = option(
+        GUIDANCE_FACE, low=1.0, high=20.0, help="classifier-free guidance scale of the face (1: none)"
+    )
     guidance_body: float = option(
         0.0,
         low=0.0,
         high=20.0,
-        help=f"classifier-free guidance scale of the body (1: none); 0: {DDIM_GUIDANCE_BODY:g} with ddim, 1 distilled",
+        help=f"classifier-free guidance scale of the body (1: none); 0: {DDIM_GUIDANCE_BODY:g}, 1 for consistency students",
     )
     guidance_body_on: str = option(
         "audio",
         choices=("audio", "all"),
-        help="with ddim, what the body's guidance amplifies: audio (the unconditional pass keeps the guide poses) or all (it drops them too, as the paper; the students learned this one)",
+        help="with the teachers, what the body's guidance amplifies: audio (the unconditional pass keeps the guide poses) or all (it drops them too, as the paper); students learned one (guidance-distilled audio, consistency all)",
     )
     top_p: float = option(
         1.0,
@@ -178,9 +188,11 @@ class A2PGenerator(LearnedGenerator):
             )
         self.speaker = np.array([speakers.index(wanted_speaker)], np.int64)
         distilled = self.options.sampler == "distilled"
+        self.distillation = str(arch.get("distillation", "consistency"))
+        consistency = distilled and self.distillation == "consistency"
         self.steps, self.face_steps = self._step_counts(arch)
-        self.dpm_times = self._dpm_times() if self.options.sampler == "dpm" else {}
-        self.guidance_body = self.options.guidance_body or (1.0 if distilled else DDIM_GUIDANCE_BODY)
+        self.dpm_times = self._dpm_times() if self.options.sampler == "dpm" or (distilled and not consistency) else {}
+        self.guidance_body = self.options.guidance_body or (1.0 if consistency else DDIM_GUIDANCE_BODY)
         self.body_unconditional = np.array([0.0, float(self.options.guidance_body_on == "audio")], np.float32)
         prefix = "_student" if distilled else ""
         self.lip = self.graph("lip")
@@ -204,7 +216,8 @@ class A2PGenerator(LearnedGenerator):
             "dpm": DPM_FACE_STEPS,
         }[sampler]
         face_steps = self.options.face_steps or own_face or steps
-        limit = int(arch["diffusion_steps"]) // self.skip if sampler == "distilled" else int(arch["diffusion_steps"])
+        consistency = sampler == "distilled" and self.distillation == "consistency"
+        limit = int(arch["diffusion_steps"]) // (self.skip if consistency else 1)
         for name, value in (("steps", steps), ("face_steps", face_steps)):
             if value > limit:
                 raise UserError(f"generator a2p: {name} must be at most {limit} with the {sampler} sampler")
@@ -332,10 +345,10 @@ class A2PGenerator(LearnedGenerator):
             return step_graph(feed)["x0"]
 
         noise = noise_like(rngs, (window, dim))
-        if distilled:
+        if distilled and self.distillation == "consistency":
             return consistency_sample(x0, noise, steps, self.alpha_bar, self.skip, rngs, known, known_mask)
         x0_fn = guided(x0, guidance) if cfg else x0
-        if self.options.sampler == "dpm":
+        if self.dpm_times:
             return dpm_solver_sample(x0_fn, noise, self.dpm_times[part.start], self.alpha_bar, known, known_mask)
         return ddim_sample(x0_fn, noise, steps, self.alpha_bar, known, known_mask, self.options.eta, rngs)
 
@@ -422,12 +435,18 @@ class A2PGenerator(LearnedGenerator):
             "steps": self.steps,
             "face_steps": self.face_steps,
             "guidance": {"face": self.options.guidance_face, "body": self.guidance_body},
-            "body_guidance_on": "all" if self.options.sampler == "distilled" else self.options.guidance_body_on,
+            "body_guidance_on": self._body_guidance_on(),
             "top_p": self.options.top_p,
             "window": self.plan.window,
             "context": self.plan.context,
             "windows": self.windows,
         }
+
+    def _body_guidance_on(self) -> str:
+        """What the body's guidance amplifies: the option's, but students learned theirs."""
+        if self.options.sampler != "distilled":
+            return self.options.guidance_body_on
+        return "all" if self.distillation == "consistency" else "audio"
 
 
 def _repeat_rows(array: np.ndarray, times: int, axis: int) -> np.ndarray:

@@ -18,11 +18,11 @@ the 1 fps poses of the window (and the second before it) through the frozen VQ-V
 7 seconds before as the decoder's history, those less than half a second before the window's end
 left out (the guide has not heard their audio yet), a few more dropped at random.
 
-Distillation (``distill``): each denoiser's student starts as a copy of it and learns consistency
-distillation (Song et al. 2023; as latent consistency models do, with the guidance scale as an
-input): from a noisy point at grid step n, the guided teacher's DDIM step to grid step n-1, and
-the student's exponential moving average's answer there, as the target of the student's answer
-at step n; at the grid's first step the target is the teacher's x0 itself.
+Distillation (``distill``): each denoiser's student starts as a copy of it, hears the guidance
+scale as an input, and learns by ``distillation`` (``convodrive.training.recipes.a2p_distill``):
+``guidance``, the guided teacher's x0 in one pass, sampled by DPM-Solver++ as the teachers are;
+or ``consistency``, a few-step sampler of its own on a coarse grid of the guided teacher's DDIM
+trajectories.
 """
 
 from __future__ import annotations
@@ -71,20 +71,22 @@ _SMALL: dict[str, Any] = {
     "window": 150,
     "min_window": 60,
     "context": 48,
+    "distillation": "guidance",
+    "face_guidance_max": 4.0,
+    "face_student_steps": 8,
     "distill_skip": 125,
-    "face_student_steps": 1,
 }
 """The shipped model: teachers and students of both denoisers, about 33 MB as fp32 ONNX (the
 mixed export, float denoiser steps and teacher memories and int8 elsewhere, 29.3 MB, fits the
 package's 30 MB).
 
-Its students learn on a coarse grid of 8 points (``distill_skip`` 125): in the few hundred steps
-the script gives distillation, a finer grid of 50 points left the students far from their teachers
-(4 steps, 3 test conversations: FD_g body 51.7 and face 33.7 against the teachers' DDIM 10, 27.6
-and 6.6), the consistency targets drifting, where 8 points reached 27.7 and 9.4 in 300 steps.
-Its face student samples in one step by default (``face_student_steps``): at 4 it left the jaw open
-in more silences (shut on 83 % of self-silent test frames, its teacher 98 %), at 1 it shuts on
-97.5 % for a few points of FD_g face (9.4 against 8.8).
+Its students learn by guidance distillation, sampled as the teachers are by DPM-Solver++ (4 body
+steps, 8 face steps evenly in log-SNR), over guidance scales 1 to 4 (the generator's defaults are
+1.5 for the face and 3 for the body). Consistency students in 4 and 1 steps, from the same teachers
+in the same 900 steps, scored FD_g body 15.1 and face 3.7 on the test split (7 x 2) against the
+teachers' DDIM default 7.97 and 1.19: their coarse grid (``distill_skip`` 125; a grid of 50 points
+drifted further in the few hundred steps a 2-core CPU gives) teaches them a crude trajectory. The
+guidance students, 7 x 4: 8.31 and 1.36 against 8.33 and 1.05 (the model card).
 
 Its VQ-VAE's causal convs are residual (``vq_residual``). Without, trained with the script's 3000
 steps, it reconstructed the test split's 1 fps poses at FD_g body 21.3 (head 3.7, upper body 14.4,
@@ -140,7 +142,7 @@ class A2PRecipe(StagedRecipe):
     description = (
         "audio2photoreal (Ng et al., CVPR 2024): a face diffusion model conditioned on both voices and a lip "
         "regressor, and a body diffusion model conditioned on both voices and guide poses at 1 fps sampled by an "
-        "autoregressive transformer over residual-VQ codes; both distilled to a few-step consistency sampler."
+        "autoregressive transformer over residual-VQ codes; both distilled into students that hear the guidance scale."
     )
     ModelConfig = A2PConfig
     stages = STAGES
@@ -220,6 +222,10 @@ class A2PRecipe(StagedRecipe):
         speakers = ", ".join(spec.info.get("speakers", []))
         n = config.face_student_steps
         face_steps = {0: "as many steps as the body", 1: "1 step"}.get(n, f"{n} steps")
+        students = {
+            "guidance": "guidance-distilled: one pass for the teacher's two, sampled by DPM-Solver++",
+            "consistency": "consistency-distilled, by their own few-step sampler",
+        }[config.distillation]
         return (
             f"{self.description}\n\nFace denoiser {config.face_width}-d x {config.face_layers} layers, body denoiser "
             f"{config.body_width}-d x {config.body_layers} layers, lip regressor {config.lip_width}-d x "
@@ -229,7 +235,8 @@ class A2PRecipe(StagedRecipe):
             f"continued from up to {config.context} known frames. Speakers: {speakers}.\n\n"
             "Use: `convodrive drive AUDIO --generator a2p -G model=THIS_FOLDER` (options: sampler, steps, "
             "face_steps, eta, guidance_face, guidance_body, top_p, speaker, mode, blend). The teachers run by "
-            "default (DDIM); with `sampler=distilled` the students do, and the distilled face takes "
+            "default (DDIM), or by DPM-Solver++(2M) in 4 body and 8 face steps (`sampler=dpm`); with "
+            f"`sampler=distilled` the students do ({students}), and the distilled face takes "
             f"{face_steps} unless `face_steps` says otherwise."
         )
 

@@ -1,9 +1,15 @@
-"""``a2p``'s distillation stage: consistency distillation of both denoisers (Song et al. 2023).
+"""``a2p``'s distillation stage: both denoisers' students, by one of two methods
+(``A2PConfig.distillation``), each student hearing the guidance scale as an input.
 
-As latent consistency models do, with the guidance scale as an input: from a noisy point at grid
-step n, the guided teacher's DDIM step to grid step n-1, and the student's exponential moving
-average's answer there, as the target of the student's answer at step n; at the grid's first step
-the target is the teacher's x0 itself.
+- ``guidance`` (Meng et al. 2023, their first stage): at a random step of the schedule, the student's
+  x0 regresses onto the guided teacher's (conditional and unconditional pass combined). One pass
+  of the student then does the teacher's two, and it is sampled by the teachers' own few-step
+  solver (DPM-Solver++): the student inherits the solver's accuracy instead of learning a coarse
+  trajectory.
+- ``consistency`` (Song et al. 2023, as latent consistency models do): from a noisy point at grid
+  step n, the guided teacher's DDIM step to grid step n-1, and the student's exponential moving
+  average's answer there, as the target of the student's answer at step n; at the grid's first
+  step the target is the teacher's x0 itself.
 """
 
 from __future__ import annotations
@@ -24,6 +30,26 @@ from convodrive.training.recipes.a2p_losses import alpha_bar, body_inputs, face_
 def update_target(student: nn.Module, target: nn.Module, decay: float) -> None:
     for s, t in zip(student.parameters(), target.parameters()):
         t.mul_(decay).add_(s.detach(), alpha=1 - decay)
+
+
+@torch.no_grad()
+def guided_teacher(
+    teacher: Denoiser,
+    memory: Memory,
+    x: torch.Tensor,
+    step: torch.Tensor,
+    x0: torch.Tensor,
+    known: torch.Tensor,
+    scale: torch.Tensor,
+) -> torch.Tensor:
+    """The teacher's guided x0 at (x, step): its conditional and unconditional rows (``memory``
+    holds both, conditional first) in one batch, combined at ``scale`` (B,)."""
+    b = len(x)
+    both = teacher.step(
+        torch.cat([x, x]), torch.cat([step, step]), torch.cat([x0, x0]), torch.cat([known, known]), memory
+    )
+    cond, uncond = both[:b], both[b:]
+    return uncond + scale[:, None, None] * (cond - uncond)
 
 
 def consistency_loss(
@@ -51,11 +77,7 @@ def consistency_loss(
     abar = alpha_bar(config).to(device)
     x = noised(x0, noise, abar[step][:, None, None])
     with torch.no_grad():
-        both = teacher.step(
-            torch.cat([x, x]), torch.cat([step, step]), torch.cat([x0, x0]), torch.cat([known, known]), teacher_memory
-        )
-        cond, uncond = both[:b], both[b:]
-        guess = uncond + scale[:, None, None] * (cond - uncond)
+        guess = guided_teacher(teacher, teacher_memory, x, step, x0, known, scale)
         guess = known * x0 + (1 - known) * guess
         a_prev = torch.where(previous >= 0, abar[previous.clamp(min=0)], torch.ones(b, device=device))[:, None, None]
         x_prev = ddim_step(x, guess, abar[step][:, None, None], a_prev)
@@ -65,53 +87,83 @@ def consistency_loss(
     return masked_l2(prediction, answer, feature_mask * (1 - known))
 
 
+def guided_regression_loss(
+    teacher: Denoiser,
+    student: Denoiser,
+    memories: tuple[Memory, Memory],
+    x0: torch.Tensor,
+    feature_mask: torch.Tensor,
+    guidance_max: float,
+    config: A2PConfig,
+    generator: torch.Generator,
+) -> torch.Tensor:
+    """One guidance-distillation term (see the module doc). ``memories``: the teacher's
+    (conditional rows, then unconditional) and the student's."""
+    teacher_memory, student_memory = memories
+    b, t, _ = x0.shape
+    device = x0.device
+    known = known_prefix(b, t, config, generator).to(device)
+    step = torch.randint(config.diffusion_steps, (b,), generator=generator).to(device)
+    scale = (1 + torch.rand(b, generator=generator) * (guidance_max - 1)).to(device)
+    noise = torch.randn(x0.shape, generator=generator).to(device)
+    x = noised(x0, noise, alpha_bar(config).to(device)[step][:, None, None])
+    guess = guided_teacher(teacher, teacher_memory, x, step, x0, known, scale)
+    prediction = student.step(x, step, x0, known, student_memory, scale)
+    return masked_l2(prediction, guess, feature_mask * (1 - known))
+
+
 def distill_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     config = model.config
     assert model.face is not None and model.body is not None and model.face_student is not None
     assert model.body_student is not None and model.face_target is not None and model.body_target is not None
-    update_target(model.face_student, model.face_target, config.distill_ema)
-    update_target(model.body_student, model.body_target, config.distill_ema)
+    consistency = config.distillation == "consistency"
     motion, audio, mask, guides, positions, valid = body_inputs(model, batch, generator)
     b = len(motion)
     speaker = batch["speaker"]
     keep = torch.ones(b, 2, device=motion.device)
-    both_keep = torch.cat([keep, torch.zeros(b, 2, device=motion.device)])
+    face_keep = torch.cat([keep, torch.zeros(b, 2, device=motion.device)])
+    # The guidance students learn the generator's DDIM default, guidance on the audio alone (the
+    # unconditional pass keeps the guide poses); the consistency ones learned it on both.
+    body_keep = face_keep.clone()
+    if not consistency:
+        body_keep[b:, 1] = 1.0
     face_cond = face_conditions(model, audio)
     heard = face_cond[0]
+    body_cond = (guides, positions, valid)
     with torch.no_grad():
-        teacher_face = model.face.memory([torch.cat([c, c]) for c in face_cond], both_keep, speaker.repeat(2))
-        target_face = model.face_target.memory(face_cond, keep, speaker)
+        teacher_face = model.face.memory([torch.cat([c, c]) for c in face_cond], face_keep, speaker.repeat(2))
         teacher_body = model.body.memory(
             [torch.cat([heard, heard])],
-            both_keep,
+            body_keep,
             speaker.repeat(2),
             guides.repeat(2, 1, 1),
             positions.repeat(2, 1),
             valid.repeat(2, 1),
         )
-        target_body = model.body_target.memory([heard], keep, speaker, guides, positions, valid)
     student_face = model.face_student.memory(face_cond, keep, speaker)
-    student_body = model.body_student.memory([heard], keep, speaker, guides, positions, valid)
-    face = consistency_loss(
-        model.face,
-        model.face_student,
-        model.face_target,
-        (teacher_face, target_face, student_face),
-        motion[..., FACE],
-        mask[..., FACE],
-        config.face_guidance_max,
-        config,
-        generator,
+    student_body = model.body_student.memory([heard], keep, speaker, *body_cond)
+    parts = (
+        ("face", model.face, model.face_student, model.face_target, (teacher_face, student_face), FACE),
+        ("body", model.body, model.body_student, model.body_target, (teacher_body, student_body), BODY),
     )
-    body = consistency_loss(
-        model.body,
-        model.body_student,
-        model.body_target,
-        (teacher_body, target_body, student_body),
-        motion[..., BODY],
-        mask[..., BODY],
-        config.body_guidance_max,
-        config,
-        generator,
-    )
-    return face + body, {"face": face.detach(), "body": body.detach()}
+    terms = {}
+    for name, teacher, student, target, (teacher_memory, student_memory), columns in parts:
+        guidance_max = config.face_guidance_max if name == "face" else config.body_guidance_max
+        x0, feature_mask = motion[..., columns], mask[..., columns]
+        if consistency:
+            update_target(student, target, config.distill_ema)
+            with torch.no_grad():
+                target_memory = (
+                    target.memory(face_cond, keep, speaker)
+                    if name == "face"
+                    else target.memory([heard], keep, speaker, *body_cond)
+                )
+            memories = (teacher_memory, target_memory, student_memory)
+            terms[name] = consistency_loss(
+                teacher, student, target, memories, x0, feature_mask, guidance_max, config, generator
+            )
+        else:
+            terms[name] = guided_regression_loss(
+                teacher, student, (teacher_memory, student_memory), x0, feature_mask, guidance_max, config, generator
+            )
+    return terms["face"] + terms["body"], {k: v.detach() for k, v in terms.items()}
