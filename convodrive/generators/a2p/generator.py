@@ -188,11 +188,13 @@ class A2PGenerator(LearnedGenerator):
             )
         self.speaker = np.array([speakers.index(wanted_speaker)], np.int64)
         distilled = self.options.sampler == "distilled"
-        self.distillation = str(arch.get("distillation", "consistency"))
-        consistency = distilled and self.distillation == "consistency"
+        self.consistency = distilled and arch.get("distillation", "consistency") == "consistency"
+        """Consistency students: their own sampler on the distillation grid, guidance on all conditions."""
         self.steps, self.face_steps = self._step_counts(arch)
-        self.dpm_times = self._dpm_times() if self.options.sampler == "dpm" or (distilled and not consistency) else {}
-        self.guidance_body = self.options.guidance_body or (1.0 if consistency else DDIM_GUIDANCE_BODY)
+        self.dpm_times = (
+            self._dpm_times() if self.options.sampler == "dpm" or (distilled and not self.consistency) else {}
+        )
+        self.guidance_body = self.options.guidance_body or (1.0 if self.consistency else DDIM_GUIDANCE_BODY)
         self.body_unconditional = np.array([0.0, float(self.options.guidance_body_on == "audio")], np.float32)
         prefix = "_student" if distilled else ""
         self.lip = self.graph("lip")
@@ -216,8 +218,7 @@ class A2PGenerator(LearnedGenerator):
             "dpm": DPM_FACE_STEPS,
         }[sampler]
         face_steps = self.options.face_steps or own_face or steps
-        consistency = sampler == "distilled" and self.distillation == "consistency"
-        limit = int(arch["diffusion_steps"]) // (self.skip if consistency else 1)
+        limit = int(arch["diffusion_steps"]) // (self.skip if self.consistency else 1)
         for name, value in (("steps", steps), ("face_steps", face_steps)):
             if value > limit:
                 raise UserError(f"generator a2p: {name} must be at most {limit} with the {sampler} sampler")
@@ -345,7 +346,7 @@ class A2PGenerator(LearnedGenerator):
             return step_graph(feed)["x0"]
 
         noise = noise_like(rngs, (window, dim))
-        if distilled and self.distillation == "consistency":
+        if self.consistency:
             return consistency_sample(x0, noise, steps, self.alpha_bar, self.skip, rngs, known, known_mask)
         x0_fn = guided(x0, guidance) if cfg else x0
         if self.dpm_times:
@@ -446,7 +447,7 @@ class A2PGenerator(LearnedGenerator):
         """What the body's guidance amplifies: the option's, but students learned theirs."""
         if self.options.sampler != "distilled":
             return self.options.guidance_body_on
-        return "all" if self.distillation == "consistency" else "audio"
+        return "all" if self.consistency else "audio"
 
 
 def _repeat_rows(array: np.ndarray, times: int, axis: int) -> np.ndarray:

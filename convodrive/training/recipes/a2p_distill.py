@@ -117,6 +117,9 @@ def distill_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[
     assert model.face is not None and model.body is not None and model.face_student is not None
     assert model.body_student is not None and model.face_target is not None and model.body_target is not None
     consistency = config.distillation == "consistency"
+    if consistency:
+        update_target(model.face_student, model.face_target, config.distill_ema)
+        update_target(model.body_student, model.body_target, config.distill_ema)
     motion, audio, mask, guides, positions, valid = body_inputs(model, batch, generator)
     b = len(motion)
     speaker = batch["speaker"]
@@ -129,7 +132,6 @@ def distill_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[
         body_keep[b:, 1] = 1.0
     face_cond = face_conditions(model, audio)
     heard = face_cond[0]
-    body_cond = (guides, positions, valid)
     with torch.no_grad():
         teacher_face = model.face.memory([torch.cat([c, c]) for c in face_cond], face_keep, speaker.repeat(2))
         teacher_body = model.body.memory(
@@ -140,27 +142,36 @@ def distill_loss(model: A2P, batch: Batch, generator: torch.Generator) -> tuple[
             positions.repeat(2, 1),
             valid.repeat(2, 1),
         )
+        targets = (
+            {
+                "face": model.face_target.memory(face_cond, keep, speaker),
+                "body": model.body_target.memory([heard], keep, speaker, guides, positions, valid),
+            }
+            if consistency
+            else {}
+        )
     student_face = model.face_student.memory(face_cond, keep, speaker)
-    student_body = model.body_student.memory([heard], keep, speaker, *body_cond)
-    parts = (
-        ("face", model.face, model.face_student, model.face_target, (teacher_face, student_face), FACE),
-        ("body", model.body, model.body_student, model.body_target, (teacher_body, student_body), BODY),
-    )
+    student_body = model.body_student.memory([heard], keep, speaker, guides, positions, valid)
+    parts = {
+        "face": (model.face, model.face_student, model.face_target, FACE, config.face_guidance_max),
+        "body": (model.body, model.body_student, model.body_target, BODY, config.body_guidance_max),
+    }
+    memories = {"face": (teacher_face, student_face), "body": (teacher_body, student_body)}
     terms = {}
-    for name, teacher, student, target, (teacher_memory, student_memory), columns in parts:
-        guidance_max = config.face_guidance_max if name == "face" else config.body_guidance_max
+    for name, (teacher, student, target, columns, guidance_max) in parts.items():
         x0, feature_mask = motion[..., columns], mask[..., columns]
+        teacher_memory, student_memory = memories[name]
         if consistency:
-            update_target(student, target, config.distill_ema)
-            with torch.no_grad():
-                target_memory = (
-                    target.memory(face_cond, keep, speaker)
-                    if name == "face"
-                    else target.memory([heard], keep, speaker, *body_cond)
-                )
-            memories = (teacher_memory, target_memory, student_memory)
             terms[name] = consistency_loss(
-                teacher, student, target, memories, x0, feature_mask, guidance_max, config, generator
+                teacher,
+                student,
+                target,
+                (teacher_memory, targets[name], student_memory),
+                x0,
+                feature_mask,
+                guidance_max,
+                config,
+                generator,
             )
         else:
             terms[name] = guided_regression_loss(
