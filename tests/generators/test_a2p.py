@@ -24,7 +24,7 @@ from tests.corpora import dyadic_audio
 pytestmark = [require("torch"), require("onnxruntime"), pytest.mark.timeout(900)]
 """The first test also pays for the session's model folder: twelve graphs exported, each checked for parity."""
 
-from convodrive.generators.a2p.generator import BODY, FACE, A2PGenerator  # noqa: E402
+from convodrive.generators.a2p.generator import BODY, FACE, HEAD, A2PGenerator  # noqa: E402
 
 
 @pytest.fixture
@@ -145,17 +145,42 @@ def test_guidance_and_sampler_options_change_the_motion(model: Path) -> None:
     assert one_face.report()["face_steps"] == 1
 
 
+def test_the_teachers_guide_the_head_harder_than_the_rest_of_the_body(model: Path) -> None:
+    """The head and neck take their own guidance scale (4 by default, the rest of the body 2): in
+    one DDIM step only their channels change with it (in the first window: the next continues from
+    all of its frames). A body scale the user sets holds for the head too unless the head's is set
+    as well."""
+    audio = dyadic_audio(2.5)
+    one_step = {"model": str(model), "sampler": "ddim", "steps": 1}
+    plan = A2PGenerator(one_step).report()
+    first = plan["window"] - plan["context"]
+
+    def body(options: dict) -> np.ndarray:
+        return rep.encode_clip(A2PGenerator({**one_step, **options}).generate(audio)[0])[:, BODY]
+
+    default = body({})
+    np.testing.assert_array_equal(default, body({"guidance_body": 2.0, "guidance_head": 4.0}))
+    uniform = body({"guidance_body": 2.0})
+    np.testing.assert_array_equal(uniform, body({"guidance_body": 2.0, "guidance_head": 2.0}))
+    head = slice(HEAD.start - BODY.start, HEAD.stop - BODY.start)
+    assert np.abs(default[:, head] - uniform[:, head]).max() > 1e-4
+    rest = np.ones(default.shape[1], bool)
+    rest[head] = False
+    np.testing.assert_allclose(default[:first, rest], uniform[:first, rest], atol=1e-5)
+    assert np.abs(default[first:, rest] - uniform[first:, rest]).max() > 1e-4
+
+
 def test_ddim_is_the_default_and_its_face_takes_more_steps_than_its_body(model: Path) -> None:
     """The face improves with every DDIM step up to 50 where the body stops at 10 (see
     ``DDIM_FACE_STEPS``); live mode keeps the face at 20 for its latency."""
     file = A2PGenerator({"model": str(model)}).report()
     assert (file["sampler"], file["steps"], file["face_steps"]) == ("ddim", 10, 50)
-    assert file["guidance"] == {"face": 1.5, "body": 3.0} and file["body_guidance_on"] == "audio"
+    assert file["guidance"] == {"face": 1.5, "body": 2.0, "head": 4.0} and file["body_guidance_on"] == "audio"
     students = A2PGenerator({"model": str(model), "sampler": "distilled"}).report()
-    assert students["guidance"]["body"] == 1.0 and students["body_guidance_on"] == "all"
+    assert students["guidance"] == {"face": 1.5, "body": 1.0, "head": 1.0} and students["body_guidance_on"] == "all"
     assert A2PGenerator({"model": str(model), "mode": "live"}).report()["face_steps"] == 20
     dpm = A2PGenerator({"model": str(model), "sampler": "dpm"}).report()
-    assert (dpm["steps"], dpm["face_steps"], dpm["guidance"]["body"]) == (4, 8, 3.0)
+    assert (dpm["steps"], dpm["face_steps"], dpm["guidance"]["body"], dpm["guidance"]["head"]) == (4, 8, 2.0, 4.0)
     assert A2PGenerator({"model": str(model), "mode": "live", "face_steps": 7}).report()["face_steps"] == 7
 
 
