@@ -103,9 +103,10 @@ def pin(x0: np.ndarray, known: np.ndarray | None, known_mask: np.ndarray | None)
     return known_mask * known + (1 - known_mask) * x0
 
 
-def guided(x0_fn: X0Fn, scale: float) -> X0Fn:
+def guided(x0_fn: X0Fn, scale: float | np.ndarray) -> X0Fn:
     """x0 with classifier-free guidance. ``x0_fn`` gets the batch twice (conditional rows first,
-    then the same rows unconditional) in one call; scale 1 is the conditional model alone."""
+    then the same rows unconditional) in one call; scale 1 is the conditional model alone. An
+    array of scales, one a channel, guides each channel by its own (it broadcasts over the last axis)."""
 
     def fn(x: np.ndarray, steps: np.ndarray) -> np.ndarray:
         both = x0_fn(np.concatenate([x, x]), np.concatenate([steps, steps]))

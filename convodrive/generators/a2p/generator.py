@@ -211,7 +211,9 @@ class A2PGenerator(LearnedGenerator):
         )
         student_guidance = 1.0 if self.consistency else STUDENT_GUIDANCE_BODY
         self.guidance_body = self.options.guidance_body or (student_guidance if distilled else DDIM_GUIDANCE_BODY)
-        self.body_guidance = self._body_guidance_per_channel()
+        self.guidance_head = self._head_guidance()
+        self.body_scales = self._body_guidance_per_channel()
+        """The body's guidance as ``_sample`` takes it: one scale, or one a channel where the head's differs."""
         self.body_unconditional = np.array([0.0, float(self.options.guidance_body_on == "audio")], np.float32)
         prefix = "_student" if distilled else ""
         self.lip = self.graph("lip")
@@ -305,7 +307,7 @@ class A2PGenerator(LearnedGenerator):
             BODY,
             context,
             rngs,
-            self.body_guidance,
+            self.body_scales,
             self.steps,
             self.body_unconditional,
         )
@@ -452,7 +454,7 @@ class A2PGenerator(LearnedGenerator):
             "sampler": self.options.sampler,
             "steps": self.steps,
             "face_steps": self.face_steps,
-            "guidance": {"face": self.options.guidance_face, "body": self.guidance_body, "head": self._head_guidance()},
+            "guidance": {"face": self.options.guidance_face, "body": self.guidance_body, "head": self.guidance_head},
             "body_guidance_on": self._body_guidance_on(),
             "top_p": self.options.top_p,
             "window": self.plan.window,
@@ -469,12 +471,10 @@ class A2PGenerator(LearnedGenerator):
         return self.guidance_body if self.options.guidance_body else DDIM_GUIDANCE_HEAD
 
     def _body_guidance_per_channel(self) -> float | np.ndarray:
-        """The body's guidance: one scale, or one per channel where the head's differs."""
-        head = self._head_guidance()
-        if head == self.guidance_body:
+        if self.guidance_head == self.guidance_body:
             return self.guidance_body
         scale = np.full(BODY.stop - BODY.start, self.guidance_body, np.float32)
-        scale[HEAD.start - BODY.start : HEAD.stop - BODY.start] = head
+        scale[HEAD.start - BODY.start : HEAD.stop - BODY.start] = self.guidance_head
         return scale
 
     def _body_guidance_on(self) -> str:
