@@ -37,6 +37,8 @@ def open_error(port: str, exc: Exception) -> UserError:
 
 READ_WAIT_S = 0.001
 """Longest a read waits for bytes before the SDK looks at its packet timeout again."""
+LATE_READ_MS = 1000.0
+"""How long past its timeout a status packet whose bytes already wait in the port is still read."""
 
 
 class LatencyPort:
@@ -76,3 +78,22 @@ class LatencyPort:
         except ValueError as exc:  # the port was closed under us
             raise OSError(str(exc)) from None
         return bytes(self.ser.read(length))
+
+    def isPacketTimeout(self) -> bool:  # noqa: N802 (SDK name)
+        """The SDK's timeout, but not while bytes wait in the port.
+
+        The SDK reads, then looks at the clock. On a loaded machine the OS can preempt the reader
+        between an empty read and that look for longer than the timeout: the reply came on time
+        and waits in the port, and the SDK would call it lost (and the next request's flush would
+        drop it). Waiting bytes are read first, up to ``LATE_READ_MS`` past the timeout, so a
+        stream of noise still ends."""
+        elapsed = self.getTimeSinceStart()
+        if self.packet_timeout and elapsed <= self.packet_timeout + LATE_READ_MS and self._bytes_waiting():
+            return False
+        return bool(super().isPacketTimeout())  # type: ignore[misc]
+
+    def _bytes_waiting(self) -> bool:
+        try:
+            return bool(self.ser.in_waiting)
+        except (OSError, ValueError, AttributeError):  # closed, or no port yet
+            return False

@@ -9,8 +9,10 @@
   session's lead, so the writes go at the pace of playing and Pipecat's own speaking events stay
   true; an ``InterruptionFrame`` clears the voice at once.
 
-Times are stamped on arrival (``time.monotonic``): Pipecat's ``FramePushed.timestamp`` counts from
-the worker's start, and VAD frames carry wall time, converted with the offset measured here.
+A push is stamped when it happened, not when the observer's task got to it (on a loaded machine
+that comes tens of milliseconds later): ``FramePushed.timestamp`` counts from the worker's clock's
+start on the monotonic clock, and that start is the least ``arrival - timestamp`` seen so far (a
+queue only adds lag). VAD frames carry wall time, converted with the offset measured here.
 """
 
 from __future__ import annotations
@@ -75,9 +77,20 @@ class ConvodriveObserver(BaseObserver):
         self._segment: Any = 0
         self._played: dict[Any, float] = {}
         """Seconds of each segment reported played (follower mode)."""
+        self._clock_start = float("inf")
+        """The worker clock's start on the monotonic clock, as far as the arrivals tell."""
+
+    def _pushed_at(self, data: FramePushed) -> float:
+        """When (monotonic) the frame was pushed; its arrival if its processor had no clock yet."""
+        arrival = time.monotonic()
+        if data.timestamp <= 0:
+            return arrival
+        pushed = data.timestamp / 1e9
+        self._clock_start = min(self._clock_start, arrival - pushed)
+        return self._clock_start + pushed
 
     async def on_push_frame(self, data: FramePushed) -> None:
-        frame, now = data.frame, time.monotonic()
+        frame, now = data.frame, self._pushed_at(data)
         session = self.session
         if isinstance(frame, InputAudioRawFrame):
             if data.first_push:

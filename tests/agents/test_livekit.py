@@ -22,7 +22,7 @@ from livekit.agents.voice import io  # noqa: E402
 from livekit.agents.voice.events import UserInputTranscribedEvent, UserStateChangedEvent  # noqa: E402
 
 from convodrive.agents.livekit import ConvodriveAudioOutput, attach  # noqa: E402
-from convodrive.agents.wall import to_mono  # noqa: E402
+from convodrive.agents.wall import to_mono, to_wall  # noqa: E402
 from convodrive.audio.source import ANALYSIS_RATE  # noqa: E402
 from convodrive.generators.base import Event  # noqa: E402
 from convodrive.pipeline.session import LiveSession  # noqa: E402
@@ -53,34 +53,45 @@ class Mic(io.AudioInput):
 
 
 class FakeSpeaker(io.AudioOutput):
-    """A sink whose capture takes as long as the frame plays; reports as RoomIO's does."""
+    """RoomIO's sink without the room: a queue of ``QUEUE`` seconds (RoomIO's ``rtc.AudioSource``
+    holds 200 ms) before a speaker that plays at the rate of real time from a segment's first
+    frame, however late the test's loop runs; reports as RoomIO's does (started at the first
+    frame, progressed and finished once the segment has played or is cleared)."""
+
+    QUEUE = 0.2
 
     def __init__(self) -> None:
         super().__init__(label="fake-speaker", capabilities=io.AudioOutputCapabilities(pause=True), sample_rate=RATE)
         self.starts: list[float] = []
         self._started: float | None = None
+        """When (monotonic) the segment's first sample played; None between segments."""
         self._pushed = 0.0
         self._pending: asyncio.Handle | None = None
 
     async def capture_frame(self, frame: rtc.AudioFrame) -> None:
         await super().capture_frame(frame)
         if self._started is None:
-            self._started = time.time()
-            self.starts.append(time.monotonic())
-            self.on_playback_started(created_at=self._started)
-        await asyncio.sleep(frame.duration)
+            self._started = time.monotonic()
+            self.starts.append(self._started)
+            self.on_playback_started(created_at=to_wall(self._started))
         self._pushed += frame.duration
+        queued = self._pushed - (time.monotonic() - self._started)
+        if queued > self.QUEUE:  # the queue is full: wait as AudioSource.capture_frame does
+            await asyncio.sleep(queued - self.QUEUE)
 
     def _finish(self, interrupted: bool) -> None:
-        started, played = self._started, self._pushed
+        started, pushed = self._started, self._pushed
         self._started, self._pushed = None, 0.0
         if started is not None:
-            self.on_playback_progressed(started_at=started, offset=0.0, duration=played)
+            played = min(pushed, time.monotonic() - started)
+            self.on_playback_progressed(started_at=to_wall(started), offset=0.0, duration=played)
             self.on_playback_finished(playback_position=played, interrupted=interrupted)
 
     def flush(self) -> None:
-        super().flush()  # what was captured has played: finished once the loop turns, unless cleared
-        self._pending = asyncio.get_running_loop().call_soon(self._finish, False)
+        super().flush()  # finished once what is queued has played, unless cleared before
+        if self._started is not None:
+            left = self._pushed - (time.monotonic() - self._started)
+            self._pending = asyncio.get_running_loop().call_later(max(left, 0.0), self._finish, False)
 
     def clear_buffer(self) -> None:
         if self._pending is not None:

@@ -185,3 +185,25 @@ def test_player_plays_through_the_convodrive_output_transport(tmp_path):
     times, jaw = mouth(session)
     assert jaw[(times > first_heard) & (times < first_heard + 1.5)].max() > 0.2
     assert jaw[times > told + 0.1].max() < CLOSED
+
+
+def test_a_push_is_stamped_when_it_happened_not_when_the_observer_got_to_it():
+    """Pipecat hands an observer its pushes through a queue of its own: on a busy machine they
+    arrive late. The stamp is the push's own time on the worker's clock, whose start the earliest
+    arrivals give."""
+    from pipecat.observers.base_observer import FramePushed
+    from pipecat.processors.frame_processor import FrameDirection
+
+    observer = ConvodriveObserver(LiveSession.__new__(LiveSession))
+    clock_start = time.monotonic() - 5.0
+
+    def pushed(ago: float) -> FramePushed:
+        ns = int((time.monotonic() - ago - clock_start) * 1e9)
+        return FramePushed(None, None, EndFrame(), FrameDirection.DOWNSTREAM, ns)  # type: ignore[arg-type]
+
+    assert abs(observer._pushed_at(pushed(0.0)) - time.monotonic()) < 0.005  # seen as it happened
+    for ago in (0.08, 0.3):  # seen late
+        assert abs(observer._pushed_at(pushed(ago)) - (time.monotonic() - ago)) < 0.005
+    assert observer._pushed_at(FramePushed(None, None, EndFrame(), FrameDirection.DOWNSTREAM, 0)) == pytest.approx(
+        time.monotonic(), abs=0.005
+    ), "a processor without a clock yet: its arrival"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import pytest
 
 from tests.backends.servo import BUS_LATENCY_MS
@@ -38,6 +40,26 @@ def test_a_short_reply_is_retried_and_counted_not_raised(head) -> None:
     assert emu.counters["shortened"] == 2
     assert (bus.health["m2"].short, bus.health["m3"].short) == (1, 1)
     assert not bus.health["m2"].lost and bus.connected
+
+
+def test_a_reply_that_came_on_time_to_a_preempted_reader_is_read_not_lost(head, monkeypatch) -> None:
+    """The SDK reads, then looks at the clock: a reader the OS took away between an empty read and
+    that look, for longer than the timeout, finds the reply waiting; it is read, not counted lost."""
+    emu, bus = head
+    port, read = bus.port, bus.port.readPort
+    stalls: list[float] = []
+
+    def preempted_read(length: int) -> bytes:
+        if not stalls:  # the first read found nothing, then the reader waited for a core past the timeout
+            stalls.append(port.packet_timeout)
+            time.sleep((port.packet_timeout + 50.0) / 1000.0)
+            return b""
+        return read(length)
+
+    monkeypatch.setattr(port, "readPort", preempted_read)
+    emu.servo(2).move_by_hand(1234)
+    assert bus.read("Present_Position", "m2") == 1234
+    assert stalls and bus.health["m2"].timeouts == 0 and bus.health["m2"].retries == 0
 
 
 def test_a_short_reply_in_a_group_read_costs_that_servo_one_retry(head) -> None:
