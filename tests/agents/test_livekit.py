@@ -75,23 +75,25 @@ class FakeSpeaker(io.AudioOutput):
             self.starts.append(self._started)
             self.on_playback_started(created_at=to_wall(self._started))
         self._pushed += frame.duration
-        queued = self._pushed - (time.monotonic() - self._started)
+        queued = self._queued()
         if queued > self.QUEUE:  # the queue is full: wait as AudioSource.capture_frame does
             await asyncio.sleep(queued - self.QUEUE)
 
+    def _queued(self) -> float:
+        """Seconds of the segment taken and not yet played (0 between segments)."""
+        return 0.0 if self._started is None else max(self._pushed - (time.monotonic() - self._started), 0.0)
+
     def _finish(self, interrupted: bool) -> None:
-        started, pushed = self._started, self._pushed
+        started, played = self._started, self._pushed - self._queued()
         self._started, self._pushed = None, 0.0
         if started is not None:
-            played = min(pushed, time.monotonic() - started)
             self.on_playback_progressed(started_at=to_wall(started), offset=0.0, duration=played)
             self.on_playback_finished(playback_position=played, interrupted=interrupted)
 
     def flush(self) -> None:
         super().flush()  # finished once what is queued has played, unless cleared before
         if self._started is not None:
-            left = self._pushed - (time.monotonic() - self._started)
-            self._pending = asyncio.get_running_loop().call_later(max(left, 0.0), self._finish, False)
+            self._pending = asyncio.get_running_loop().call_later(self._queued(), self._finish, False)
 
     def clear_buffer(self) -> None:
         if self._pending is not None:
