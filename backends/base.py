@@ -77,7 +77,7 @@ class Backend(abc.ABC):
     light: ClassVar[bool] = False
     """True when ``send`` does little work (well under a millisecond of CPU, no waiting on a
     device): in a real-time run its worker then shares the clock's real-time scheduling, below the
-    clock (``convodrive.scheduler.priority.HelperPriority``)."""
+    clock (``convodrive.plumbing.priority.HelperPriority``)."""
     default_profile: ClassVar[str | None] = None
     """A robot profile under config/robots used when the run names none; None for canonical-only."""
     requires: ClassVar[tuple[str, ...]] = ()

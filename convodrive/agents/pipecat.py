@@ -3,7 +3,9 @@
 - ``ConvodriveObserver``: an observer (Pipecat gives each its own queue and task, so it cannot
   stall the pipeline). It feeds the user's audio as it arrives, turns state frames into
   conversation events, and in follower mode feeds the TTS audio as generated and reports each
-  chunk the output transport pushes on after writing it as played (``self_played``).
+  chunk the output transport pushes on after writing it as played (``self_played``). Pipecat's
+  bot speaking frames are its speaking events, but for the start it announces for the chunk its
+  transport was writing when an interruption came (that chunk belongs to the cleared reply).
 - ``ConvodriveOutputTransport``: player mode, convodrive is the speaker. Its ``write_audio_frame``
   feeds the session and returns once the voice queued ahead of the speaker is under the
   session's lead, so the writes go at the pace of playing and Pipecat's own speaking events stay
@@ -79,6 +81,10 @@ class ConvodriveObserver(BaseObserver):
         """Seconds of each segment reported played (follower mode)."""
         self._clock_start = float("inf")
         """The worker clock's start on the monotonic clock, as far as the arrivals tell."""
+        self._voiced = False
+        """Follower mode: TTS audio came since the last interruption."""
+        self._bot_speaking = False
+        """Follower mode: the last bot speaking event posted was a start."""
 
     def _pushed_at(self, data: FramePushed) -> float:
         """When (monotonic) the frame was pushed; its arrival if its processor had no clock yet."""
@@ -107,6 +113,7 @@ class ConvodriveObserver(BaseObserver):
         elif isinstance(frame, TTSStoppedFrame) and not session.player:
             session.end_self(frame.context_id or self._segment)
         elif isinstance(frame, InterruptionFrame) and not session.player:
+            self._voiced = False
             session.clear_self(now)  # player mode: the output transport clears
         elif isinstance(frame, VADUserStartedSpeakingFrame):
             session.event(Event.USER_SPEECH_START, to_mono(frame.timestamp - frame.start_secs))
@@ -115,9 +122,22 @@ class ConvodriveObserver(BaseObserver):
         elif data.direction == FrameDirection.DOWNSTREAM:  # broadcast frames: one copy
             kind = STATE_EVENTS.get(type(frame))
             if kind is None and not session.player:
-                kind = FOLLOWER_EVENTS.get(type(frame))
+                kind = self._bot_speaking_event(type(frame))
             if kind is not None:
                 session.event(kind, now, frame=type(frame).__name__)
+
+    def _bot_speaking_event(self, frame_type: type) -> Event | None:
+        """Pipecat's bot speaking frames as events, but for the chunk its output transport was
+        already writing when an interruption came: it still plays that chunk (of a cleared
+        segment) and says the bot started again, with no stop until a fallback seconds later."""
+        kind = FOLLOWER_EVENTS.get(frame_type)
+        if kind is Event.SPEAKING_START and (self._bot_speaking or not self._voiced):
+            return None
+        if kind is Event.SPEAKING_END and not self._bot_speaking:
+            return None
+        if kind is not None:
+            self._bot_speaking = kind is Event.SPEAKING_START
+        return kind
 
     def _self_audio(self, data: FramePushed, frame: OutputAudioRawFrame, now: float) -> None:
         segment = getattr(frame, "context_id", None) or self._segment
@@ -127,6 +147,7 @@ class ConvodriveObserver(BaseObserver):
                 self.session.self_played(segment, offset, at=now - _seconds(frame))
                 self._played[segment] = offset + _seconds(frame)
         elif data.first_push and isinstance(frame, TTSAudioRawFrame):
+            self._voiced = True
             self.session.feed_self(frame.audio, frame.sample_rate, segment, frame.num_channels)
 
 

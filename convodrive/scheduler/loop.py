@@ -36,8 +36,8 @@ from convodrive import FPS
 from convodrive.motion.clip import MotionFrame
 from convodrive.motion.targets import TargetFrame
 from convodrive.plumbing.errors import UserError, error_line
+from convodrive.plumbing.priority import clock_thread_priority, realtime_priority
 from convodrive.scheduler.clock import Clock
-from convodrive.scheduler.priority import clock_thread_priority, realtime_priority
 from convodrive.scheduler.producer import FrameSource, Producer
 from convodrive.scheduler.report import RunResult
 from convodrive.scheduler.route import Route

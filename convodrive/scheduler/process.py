@@ -32,7 +32,7 @@ from convodrive.backends.base import Backend, BackendFailed, Session
 from convodrive.motion.targets import TargetFrame, TargetSpec
 from convodrive.plumbing.child import start_child
 from convodrive.plumbing.errors import RemoteError, UserError, error_line
-from convodrive.scheduler.priority import HelperPriority
+from convodrive.plumbing.priority import HelperPriority
 
 FILE_NICE = 5
 """A child that feeds files takes this much less CPU priority: its outputs may lag, the clock not."""

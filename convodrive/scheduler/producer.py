@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 from convodrive.motion.clip import MotionFrame
-from convodrive.scheduler.priority import HelperPriority
+from convodrive.plumbing.priority import HelperPriority
 from convodrive.scheduler.slots import END
 
 FrameSource = Iterator[tuple[MotionFrame, ...]]

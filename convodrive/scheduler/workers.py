@@ -12,8 +12,8 @@ from typing import Any
 from convodrive.backends.base import BackendFailed
 from convodrive.motion.targets import TargetFrame
 from convodrive.plumbing.errors import error_line
+from convodrive.plumbing.priority import HelperPriority
 from convodrive.plumbing.stats import Histogram
-from convodrive.scheduler.priority import HelperPriority
 from convodrive.scheduler.route import Route
 from convodrive.scheduler.slots import END, BlockingSlot, DropOldestSlot
 

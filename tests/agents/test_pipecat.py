@@ -1,5 +1,5 @@
 """Pipecat's real pipeline worker driving a live session: follower mode behind an output
-transport that sleeps each chunk's duration (a fake speaker), player mode through
+transport paced as a speaker plays (a fake speaker), player mode through
 ``ConvodriveOutputTransport``; the recorder as the backend. No network: nothing here talks to
 a service, and Pipecat sends no usage data."""
 
@@ -44,21 +44,26 @@ RATE = ANALYSIS_RATE
 
 
 class FakeSpeaker(BaseOutputTransport):
-    """An output transport whose write takes as long as the chunk plays."""
+    """An output transport whose write returns when the chunk has played, on a clock that keeps
+    real time (as Pipecat's own transports pace their writes): a late write does not make the
+    speaker play slower."""
 
     def __init__(self) -> None:
         super().__init__(
             TransportParams(audio_out_enabled=True, audio_out_sample_rate=RATE, audio_out_end_silence_secs=0)
         )
         self.writes: list[float] = []
+        self._played_until = 0.0
 
     async def start(self, frame: StartFrame) -> None:
         await super().start(frame)
         await self.set_transport_ready(frame)
 
     async def write_audio_frame(self, frame: OutputAudioRawFrame) -> bool:
-        self.writes.append(time.monotonic())
-        await asyncio.sleep(frame.num_frames / frame.sample_rate)
+        now = time.monotonic()
+        self.writes.append(now)
+        self._played_until = max(self._played_until, now) + frame.num_frames / frame.sample_rate
+        await asyncio.sleep(self._played_until - now)
         return True
 
 
@@ -207,3 +212,31 @@ def test_a_push_is_stamped_when_it_happened_not_when_the_observer_got_to_it():
     assert observer._pushed_at(FramePushed(None, None, EndFrame(), FrameDirection.DOWNSTREAM, 0)) == pytest.approx(
         time.monotonic(), abs=0.005
     ), "a processor without a clock yet: its arrival"
+
+
+def test_the_chunk_pipecat_was_writing_when_cut_does_not_start_the_bot_again(tmp_path):
+    """Pipecat's output transport plays out the chunk it took from its queue before an interruption
+    came, and says the bot started speaking again (its stop comes 3 s later, by a fallback). That
+    chunk is of the cleared reply: the session posts neither."""
+    from pipecat.frames.frames import BotStartedSpeakingFrame, BotStoppedSpeakingFrame
+    from pipecat.observers.base_observer import FramePushed
+    from pipecat.processors.frame_processor import FrameDirection
+
+    session = LiveSession.open(mode="follower", backends=("record",), out_dir=tmp_path, self_rate=RATE)
+    observer = ConvodriveObserver(session)
+    chunk = voice()[: int(0.1 * RATE)].tobytes()
+
+    async def push(*frames) -> None:
+        for frame in frames:
+            await observer.on_push_frame(FramePushed(None, None, frame, FrameDirection.DOWNSTREAM, 0))  # type: ignore[arg-type]
+
+    try:
+        asyncio.run(push(TTSStartedFrame(context_id="c1"), TTSAudioRawFrame(chunk, RATE, 1, context_id="c1")))
+        asyncio.run(push(BotStartedSpeakingFrame(), InterruptionFrame(), BotStoppedSpeakingFrame()))
+        asyncio.run(push(BotStartedSpeakingFrame(), BotStoppedSpeakingFrame()))  # the chunk in hand, the fallback
+        assert kinds(session)[-3:] == [Event.SPEAKING_START, Event.INTERRUPTED, Event.SPEAKING_END]
+        asyncio.run(push(TTSStartedFrame(context_id="c2"), TTSAudioRawFrame(chunk, RATE, 1, context_id="c2")))
+        asyncio.run(push(BotStartedSpeakingFrame()))  # the next reply starts the bot again
+        assert kinds(session)[-2:] == [Event.SPEAKING_END, Event.SPEAKING_START]
+    finally:
+        session.close()

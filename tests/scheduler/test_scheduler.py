@@ -197,7 +197,7 @@ def test_a_paced_run_puts_the_producer_and_light_workers_just_below_the_clock(tm
     that the OS had preempted. Those that work little a frame run real-time, below the clock."""
     import os
 
-    from convodrive.scheduler.priority import CLOCK_FIFO_PRIORITY, HELPER_FIFO_PRIORITY
+    from convodrive.plumbing.priority import CLOCK_FIFO_PRIORITY, HELPER_FIFO_PRIORITY
 
     seen: dict[str, set[tuple[int, int]]] = {"producer": set(), "light": set(), "heavy": set()}
 
@@ -234,7 +234,7 @@ def test_a_thread_busier_than_it_promised_leaves_real_time_priority() -> None:
     import os
     import time
 
-    from convodrive.scheduler.priority import HelperPriority
+    from convodrive.plumbing.priority import HelperPriority
 
     def run() -> None:
         with HelperPriority(True, "generator") as helper:
@@ -266,7 +266,7 @@ def test_threads_a_helper_starts_share_its_priority_only_when_it_says_so() -> No
     (``inherit``); an ONNX Runtime pool that a generator starts does not."""
     import os
 
-    from convodrive.scheduler.priority import HelperPriority
+    from convodrive.plumbing.priority import HelperPriority
 
     def started_from(inherit: bool) -> int:
         policies: list[int] = []
@@ -289,7 +289,7 @@ def test_threads_a_helper_starts_share_its_priority_only_when_it_says_so() -> No
 def test_nothing_changes_priority_in_an_offline_run() -> None:
     import os
 
-    from convodrive.scheduler.priority import HelperPriority
+    from convodrive.plumbing.priority import HelperPriority
 
     before = os.sched_getscheduler(0)
     with HelperPriority(False, "generator") as helper:

@@ -30,6 +30,7 @@ from convodrive.audio.live.watch import Watch
 from convodrive.audio.resample import StreamResampler
 from convodrive.audio.source import ANALYSIS_RATE, AudioSource, ChannelMap
 from convodrive.plumbing.errors import UserError
+from convodrive.plumbing.priority import CallbackPriority
 
 BLOCK_SECONDS = 0.005
 """Capture block: 5 ms (a sample waits at most this long for its block to be handed over)."""
@@ -135,6 +136,7 @@ class MicrophoneInput(PartnerInput):
         """Since when ``lost`` has been asked often enough to have seen callbacks, had there been any."""
         self.portaudio_overflows = 0
         self.callbacks = 0
+        self._priority = CallbackPriority("capture callback")
         self.longest_gap = 0.0
         """The longest time between two callbacks (a stall of the audio server, or of this process)."""
         self._closed = False
@@ -157,6 +159,7 @@ class MicrophoneInput(PartnerInput):
         self._started_at = time.monotonic()
 
     def _callback(self, indata: np.ndarray, frames: int, time_info: Any, status: Any) -> None:
+        self._priority()
         now = time.monotonic()
         first = self.ring.write_pos
         self.ring.write_or_drop(indata[:, 0])
@@ -220,6 +223,7 @@ class MicrophoneInput(PartnerInput):
             "overrun_ms": round(1000.0 * self.ring.overrun_samples / self.rate, 1),
             "portaudio_overflows": self.portaudio_overflows,
             "longest_callback_gap_ms": round(1000.0 * self.longest_gap, 1),
+            "callback_priority": self._priority.granted,
         }
 
 

@@ -34,6 +34,7 @@ from convodrive.audio.live.devices import Device, close_stream, portaudio
 from convodrive.audio.live.ring import SampleRing
 from convodrive.audio.live.watch import Watch
 from convodrive.plumbing.errors import UserError
+from convodrive.plumbing.priority import CallbackPriority
 
 BLOCK_SECONDS = 0.01
 """Callback period: 10 ms blocks."""
@@ -74,6 +75,7 @@ class Playback:
         self.portaudio_underflows = 0
         self.stalls = 0
         self.callbacks = 0
+        self._priority = CallbackPriority("speaker callback")
         self._closed = threading.Event()
         self._stopped: str | None = None
         self._started_at: float | None = None
@@ -121,6 +123,7 @@ class Playback:
         self._started_at = time.monotonic()
 
     def _callback(self, outdata: np.ndarray, frames: int, time_info: Any, status: Any) -> None:
+        self._priority()
         if self._stopped is not None:  # given up: the clock runs on the frozen notes
             outdata.fill(0.0)
             return
@@ -222,6 +225,7 @@ class Playback:
             "underrun_ms": round(1000.0 * self.ring.underrun_samples / self.rate, 1),
             "portaudio_underflows": self.portaudio_underflows,
             "stalls": self.stalls,
+            "callback_priority": self._priority.granted,
             "stopped": self._stopped,
             "timing_noise_ms": round(spread, 3) if spread is not None else None,
         }

@@ -11,6 +11,7 @@ from convodrive.audio.live.capture import MicrophoneInput, Recording
 from convodrive.audio.live.devices import find_device
 from convodrive.audio.live.playback import Playback
 from convodrive.scheduler import PlaybackClock
+from tests.conftest import realtime_allowed
 from tests.pulse import MONITOR, SPEAKER
 
 pytestmark = [pytest.mark.pulseaudio, pytest.mark.live]
@@ -62,3 +63,6 @@ def test_clock_reads_where_the_speaker_is(pulse, monkeypatch) -> None:
     assert np.all(np.abs(error_ms) < 10.0), error_ms
     # Waiting never returns early (a busy CPU may only make it late).
     assert all(now >= t for (_, now), t in zip(woke, clicks))
+    if realtime_allowed():  # the clock's source and the capture wait behind no ordinary process
+        assert playback.report()["callback_priority"].startswith("SCHED_FIFO")
+        assert monitor.source.report()["callback_priority"].startswith("SCHED_FIFO")

@@ -291,7 +291,7 @@ def test_a_servo_childs_bus_threads_share_its_real_time_priority() -> None:
     started before: it never holds the interpreter lock)."""
     import os
 
-    from convodrive.scheduler.priority import HELPER_FIFO_PRIORITY
+    from convodrive.plumbing.priority import HELPER_FIFO_PRIORITY
     from convodrive.scheduler.process import ProcessBackend
 
     with start_emulated_head() as emu:

@@ -175,3 +175,32 @@ class HelperPriority:
             except OSError:
                 pass
         self.active = False
+
+
+class CallbackPriority:
+    """``HelperPriority`` for a thread another library owns and calls us from (PortAudio's audio
+    callback): taken on the first call, its CPU share checked on every later one.
+
+    A live run's clock is the speaker's position, and the capture of the partner and the monitor
+    are stamped by their callbacks. A callback thread at ordinary priority waited behind other
+    processes on a loaded machine, the server ran out of samples (underflows), and the time line
+    moved under the clock. The work a call is a block's copy, so real-time priority costs nothing.
+    """
+
+    def __init__(self, who: str) -> None:
+        self.helper = HelperPriority(True, who)
+        self._taken = False
+
+    @property
+    def granted(self) -> str:
+        """What the thread has, for a report."""
+        if self.helper.demoted:
+            return "normal (too much work a call for real time)"
+        return f"SCHED_FIFO {HELPER_FIFO_PRIORITY}" if self.helper.active else "normal"
+
+    def __call__(self) -> None:
+        if self._taken:
+            self.helper.tick()
+            return
+        self._taken = True
+        self.helper.__enter__()
