@@ -24,11 +24,11 @@ import functools
 from typing import Any
 
 import numpy as np
-from scipy.signal import butter, sosfreqz
 
 from convodrive import FPS
 from convodrive.audio.logmel import DEFAULT_SPEC, MelSpec, band_average, band_centres, log_mel
 from convodrive.audio.source import ANALYSIS_RATE
+from convodrive.plumbing.lazy_import import scipy_signal
 
 KINDS = ("speed", "pitch", "reverb", "bleed", "level", "telephone", "noise")
 """In the order they apply: the voice, the room, the microphone, the line, the noise floor."""
@@ -117,8 +117,9 @@ _centres = functools.cache(band_centres)
 @functools.cache
 def telephone_gains(spec: MelSpec = DEFAULT_SPEC) -> np.ndarray:
     """(bands,) a telephone line's energy gain per band (an 8th-order Butterworth band-pass)."""
-    sos = butter(8, TELEPHONE_HZ, btype="bandpass", fs=ANALYSIS_RATE, output="sos")
-    _, response = sosfreqz(sos, worN=spec.n_fft // 2 + 1, fs=ANALYSIS_RATE)
+    signal = scipy_signal()  # on first use: every training command imports this module
+    sos = signal.butter(8, TELEPHONE_HZ, btype="bandpass", fs=ANALYSIS_RATE, output="sos")
+    _, response = signal.sosfreqz(sos, worN=spec.n_fft // 2 + 1, fs=ANALYSIS_RATE)
     return band_average(spec, np.abs(response) ** 2)
 
 

@@ -233,11 +233,13 @@ class _Session:
         stage = identity["stage"]
         resume = _resume_point(out, identity)
         torch.manual_seed(train_cfg.seed)
-        torch.use_deterministic_algorithms(True, warn_only=True)
         data = recipe.load_data(corpus, model_cfg, stage)
         if len(data.train) == 0:
             raise UserError(f"{corpus}: no training examples for model '{recipe.name}'")
         check_batch_fits(data.train, train_cfg.batch_size // procs.world_size, train_cfg.batch_size)
+        # After the checks: it imports torch's compiler settings (over a second), which a user's
+        # mistake need not wait for.
+        torch.use_deterministic_algorithms(True, warn_only=True)
         torch.manual_seed(train_cfg.seed)
         net = _build(recipe, model_cfg, data, stage, procs.device)
         optimizer = torch.optim.AdamW(net.parameters(), lr=train_cfg.lr, weight_decay=train_cfg.weight_decay)
