@@ -160,6 +160,25 @@ def run_cli(
     )
 
 
+def cli_in_process(*args: str) -> subprocess.CompletedProcess:
+    """``convodrive`` in this interpreter, for the many one-line mistakes a command refuses before it
+    does anything: the same ``main``, exit status and streams as ``run_cli`` gives, without a fresh
+    interpreter's two to five seconds of imports (torch) per case. A traceback comes out as this
+    test's error. Anything that runs a command's work, or needs a clean process, uses ``run_cli``."""
+    import contextlib
+    import io
+
+    from convodrive.cli.main import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = main(list(args))
+        except SystemExit as exc:  # argparse's own refusals
+            code = exc.code if isinstance(exc.code, int) else 1
+    return subprocess.CompletedProcess(["convodrive", *args], code, out.getvalue(), err.getvalue())
+
+
 def _drop_read_override() -> None:
     """Drop CAP_DAC_OVERRIDE and CAP_DAC_READ_SEARCH from the bounding set before exec (Linux), so
     that even root is refused a file with mode 000."""

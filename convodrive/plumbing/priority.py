@@ -1,4 +1,5 @@
-"""Scheduling weight for paced runs: the clock and its workers should wake on time."""
+"""Scheduling weight for paced runs: the clock, its workers, the live audio callbacks and the demo's
+emulated servos should wake on time."""
 
 from __future__ import annotations
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import require, run_cli
+from tests.conftest import cli_in_process, require, run_cli
 
 pytestmark = [require("torch"), require("onnxruntime")]
 
@@ -90,7 +90,7 @@ def test_an_int8_export_keeps_the_graphs_named_float(fgd_run: Path, tmp_path: Pa
     ],
 )
 def test_a_wrong_float_list_is_one_line(fgd_run: Path, tmp_path: Path, args: list[str], message: str) -> None:
-    out = run_cli("export", str(fgd_run), "--out", str(tmp_path / "model"), *args)
+    out = cli_in_process("export", str(fgd_run), "--out", str(tmp_path / "model"), *args)
     assert out.returncode == 2 and message in out.stderr and "Traceback" not in out.stderr
     assert not (tmp_path / "model").exists()
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import require, run_cli
+from tests.conftest import cli_in_process, require, run_cli
 
 pytestmark = [require("torch"), require("onnxruntime")]
 
@@ -144,7 +144,7 @@ def test_batches_assembled_by_worker_processes_train_the_same_weights(tiny_corpu
 )
 def test_user_mistakes_are_one_line(args: list[str], message: str, tiny_corpus: Path, tmp_path: Path) -> None:
     args = [str(tiny_corpus) if a == "C" else a for a in args]
-    out = run_cli(*args, "--out", str(tmp_path / "run"))
+    out = cli_in_process(*args, "--out", str(tmp_path / "run"))
     assert out.returncode == 2, out.stderr
     assert message in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr
     assert not (tmp_path / "run" / "checkpoints").exists()

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import require, run_cli
+from tests.conftest import cli_in_process, require, run_cli
 
 pytestmark = [require("torch"), require("onnxruntime")]
 
@@ -44,7 +44,7 @@ def _one_line(out: subprocess.CompletedProcess, *fragments: str) -> None:
 def test_bad_settings_are_one_line_and_leave_no_folder(
     settings: list[str], message: str, tiny_corpus: Path, tmp_path: Path
 ) -> None:
-    out = run_cli("train", "fgd", "--corpus", str(tiny_corpus), *TINY, *settings, "--out", str(tmp_path / "run"))
+    out = cli_in_process("train", "fgd", "--corpus", str(tiny_corpus), *TINY, *settings, "--out", str(tmp_path / "run"))
     _one_line(out, message)
     assert not (tmp_path / "run").exists()  # the diverged run wrote run.json and metrics.csv, then removed them
 
@@ -155,10 +155,10 @@ def test_a_damaged_checkpoint_is_one_line_naming_the_file(
     ckpt = run / "checkpoints" / "step-00000010"
     damage(ckpt / file)  # type: ignore[operator]
     if command == "train":
-        out = run_cli("train", "fgd", "--corpus", str(tiny_corpus), *TINY, "--steps", "12", "--out", str(run))
+        out = cli_in_process("train", "fgd", "--corpus", str(tiny_corpus), *TINY, "--steps", "12", "--out", str(run))
         named = ckpt / file
     else:
-        out = run_cli("export", str(ckpt), "--out", str(tmp_path / "model"))
+        out = cli_in_process("export", str(ckpt), "--out", str(tmp_path / "model"))
         named = ckpt / ("model.safetensors" if message == "" else file)  # weights of another shape than the config
         assert not (tmp_path / "model").exists()
     _one_line(out, f"{named}: ", message)
