@@ -5,11 +5,15 @@ with its parity checked)."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
 
 from tests.conftest import built_once
+
+if TYPE_CHECKING:
+    from convodrive.training.recipe import GraphSpec
 
 
 def _untrained_spec(speakers: list[str]):  # type: ignore[no-untyped-def]
@@ -35,7 +39,7 @@ def _untrained_spec(speakers: list[str]):  # type: ignore[no-untyped-def]
     )
 
 
-def torchscript_export(spec, path: Path) -> None:  # type: ignore[no-untyped-def]
+def torchscript_export(spec: GraphSpec, path: Path) -> None:
     """One graph by torch's TorchScript exporter: 0.3 s a graph, where the dynamo exporter that
     ``convodrive export`` uses takes 6 s (its symbolic shapes) and twelve graphs took two minutes of
     the suite. The same inputs, outputs and dynamic axes, and ``export_model`` checks its parity at
