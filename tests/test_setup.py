@@ -49,9 +49,10 @@ def _venv_that_sees(python: str, venv: Path, site: Path, *flags: str) -> None:
 
 
 def _fresh_venv(project: Path) -> None:
-    """A new .venv that sees the packages this interpreter has (so that nothing is downloaded but
-    the build tools), the way each worktree's venv reuses the shared one."""
-    _venv_that_sees(sys.executable, project / ".venv", Path(sysconfig.get_paths()["purelib"]))
+    """A new .venv that sees the packages this interpreter has (so that nothing is downloaded), the
+    way each worktree's venv reuses the shared one; its pip and build tools are this interpreter's
+    too (a venv's own bundled setuptools is too old to read the pyproject, and no index may update it)."""
+    _venv_that_sees(sys.executable, project / ".venv", Path(sysconfig.get_paths()["purelib"]), "--without-pip")
 
 
 def _shared_dev_tools(project: Path) -> None:
@@ -68,13 +69,20 @@ def _shared_dev_tools(project: Path) -> None:
         (project / "tools" / "node" / "node_modules").symlink_to(node_modules)
 
 
+def _offline_env() -> dict[str, str]:
+    """The environment setup.sh runs in here: pip asks no package index (a test sends nothing beyond
+    loopback) and builds the editable install with the setuptools the venv already sees, where it
+    would fetch one into an isolated build environment."""
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONWARNINGS", "VIRTUAL_ENV")}
+    return {**env, "PIP_NO_INDEX": "1", "PIP_NO_BUILD_ISOLATION": "0"}
+
+
 def test_a_fresh_setup_prints_only_its_own_lines(tmp_path: Path) -> None:
     project = _copy_of_the_project(tmp_path / "convodrive")
     _fresh_venv(project)
     _shared_dev_tools(project)
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONWARNINGS", "VIRTUAL_ENV")}
     out = subprocess.run(
-        ["scripts/setup.sh", "--dev"], cwd=project, capture_output=True, text=True, timeout=600, env=env
+        ["scripts/setup.sh", "--dev"], cwd=project, capture_output=True, text=True, timeout=600, env=_offline_env()
     )
     assert out.returncode == 0, out.stdout + out.stderr
     assert out.stdout.splitlines() == ["setup: installing Python packages into .venv", "setup: ready (.venv)"]
@@ -92,7 +100,9 @@ def test_a_failing_pip_is_shown_and_stops_setup(tmp_path: Path) -> None:
     _fresh_venv(project)
     pyproject = project / "pyproject.toml"
     pyproject.write_text(pyproject.read_text().replace('name = "convodrive"', 'name = "convodrive"\nbroken = [', 1))
-    out = subprocess.run(["scripts/setup.sh"], cwd=project, capture_output=True, text=True, timeout=600)
+    out = subprocess.run(
+        ["scripts/setup.sh"], cwd=project, capture_output=True, text=True, timeout=600, env=_offline_env()
+    )
     assert out.returncode == 1
     assert "setup: ready" not in out.stdout
     assert "setup: pip install failed (above)" in out.stderr and "TOMLDecodeError" in out.stderr

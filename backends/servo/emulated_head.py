@@ -12,13 +12,7 @@ from multiprocessing.connection import Connection
 
 from convodrive.backends.servo.dynamixel_emulator import start_emulated_head
 from convodrive.backends.servo.emulator_faults import Fault, parse_fault
-from convodrive.plumbing.priority import CLOCK_FIFO_PRIORITY
-
-EMULATOR_FIFO_PRIORITY = CLOCK_FIFO_PRIORITY + 1
-"""Above the driver's clock and helpers. Servos answer whatever the host's CPU does; below the
-helpers (as it was), two real-time threads of the driver or of another paced run holding both cores
-kept a reply back for a quarter of a second, and the driver counted the servo lost. Its work is a
-packet's parse and reply, well under a millisecond, so the clock loses no more than that."""
+from convodrive.plumbing.priority import EMULATOR_FIFO_PRIORITY
 
 
 @contextlib.contextmanager
@@ -49,9 +43,9 @@ def emulated_head_process(faults: Iterable[str] = (), ids: Iterable[int] = range
 def _serve_head(conn: Connection, ids: list[int], faults: list[Fault]) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    # It stands for servos, which do not share the driver's CPU: answer like them, on time. Its
-    # threads only wait for bytes and sleep out wire time, so real-time scheduling (inherited by
-    # the pty server's thread) costs the machine nothing.
+    # The serving thread answers at real-time priority (``PtyServer``); the process's other threads
+    # share its interpreter lock, so they get that priority too: one of them preempted while it held
+    # the lock kept a reply back as long as the driver's real-time threads held the core.
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(EMULATOR_FIFO_PRIORITY))
     except (AttributeError, OSError):

@@ -17,6 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from convodrive.plumbing.errors import UserError, os_reason
+from convodrive.plumbing.priority import EMULATOR_FIFO_PRIORITY, HelperPriority
 
 
 def check_link(link: Path) -> None:
@@ -138,6 +139,12 @@ class PtyServer:
                     pass
 
     def _serve(self) -> None:
+        # It stands for a device, which does not share the driver's CPU: it answers like one, on
+        # time, above the driver's real-time threads (while its work stays a small share of a core).
+        with HelperPriority(True, self._name, priority=EMULATOR_FIFO_PRIORITY) as realtime:
+            self._serve_until_stopped(realtime)
+
+    def _serve_until_stopped(self, realtime: HelperPriority) -> None:
         while not self._stop.is_set():
             with self._lock:
                 fd = self._master
@@ -156,6 +163,7 @@ class PtyServer:
                     data = b""
                 if data:
                     self._on_bytes(data)
+                    realtime.tick()
 
 
 class PtyDevice:

@@ -1,5 +1,5 @@
-"""Scheduling weight for paced runs: the clock, its workers, the live audio callbacks and the demo's
-emulated servos should wake on time."""
+"""Scheduling weight for paced runs: the clock, its workers, the live audio callbacks and the
+emulated devices' serving threads should wake on time."""
 
 from __future__ import annotations
 
@@ -19,6 +19,13 @@ ordinary processes, not the kernel's own real-time threads)."""
 HELPER_FIFO_PRIORITY = CLOCK_FIFO_PRIORITY - 1
 """The producer's and light workers' real-time priority: above every ordinary process, below the
 clock, so the clock still preempts them when it wakes."""
+
+EMULATOR_FIFO_PRIORITY = CLOCK_FIFO_PRIORITY + 1
+"""An emulated device's serving thread: above the driver's clock and helpers. Servos answer whatever
+the host's CPU does; below the helpers, two real-time threads of the driver (or of another paced
+run) holding both cores kept a reply back for a quarter of a second, and the driver counted the
+servo lost. Its work is a packet's parse and reply, well under a millisecond, so the clock loses no
+more than that."""
 
 _FIFO_INHERITED = getattr(os, "SCHED_FIFO", 1)
 """Real-time, inherited by the threads and processes the thread starts."""
@@ -121,10 +128,11 @@ class HelperPriority:
     MAX_SHARE = 0.5
     WINDOW_S = 1.0
 
-    def __init__(self, paced: bool, who: str, *, inherit: bool = False) -> None:
+    def __init__(self, paced: bool, who: str, *, inherit: bool = False, priority: int = HELPER_FIFO_PRIORITY) -> None:
         self.paced = paced
         self.who = who
         self.inherit = inherit
+        self.priority = priority
         self.active = False
         self.demoted = False
         self._old: tuple[int, os.sched_param] | None = None
@@ -137,7 +145,7 @@ class HelperPriority:
         policy = _FIFO_INHERITED if self.inherit else _FIFO
         try:
             self._old = (os.sched_getscheduler(0), os.sched_getparam(0))
-            os.sched_setscheduler(0, policy, os.sched_param(HELPER_FIFO_PRIORITY))
+            os.sched_setscheduler(0, policy, os.sched_param(self.priority))
         except (PermissionError, OSError):
             self._old = None
             return self
@@ -197,7 +205,7 @@ class CallbackPriority:
         """What the thread has, for a report."""
         if self.helper.demoted:
             return "normal (too much work a call for real time)"
-        return f"SCHED_FIFO {HELPER_FIFO_PRIORITY}" if self.helper.active else "normal"
+        return f"SCHED_FIFO {self.helper.priority}" if self.helper.active else "normal"
 
     def __call__(self) -> None:
         if self._taken:

@@ -19,7 +19,7 @@ from convodrive.generators.probtalk.generator import ProbTalkGenerator
 from convodrive.motion import representation as rep
 from convodrive.neural.maskgit import draw_uniforms
 from convodrive.neural.maskgit import maskgit_sample as numpy_maskgit_sample
-from tests.conftest import REPO, require, run_cli
+from tests.conftest import REPO, cli_in_process, require, run_cli
 from tests.corpora import dyadic_audio
 
 pytestmark = [require("torch"), require("onnxruntime"), pytest.mark.timeout(900)]
@@ -47,17 +47,17 @@ def test_the_export_holds_every_stage_with_parity(stages: dict[str, Path]) -> No
 
 
 def test_later_stages_need_the_earlier_one(stages: dict[str, Path], tiny_corpus: Path, tmp_path: Path) -> None:
-    alone = run_cli(
+    alone = cli_in_process(
         "train", "probtalk", "--stage", "refiner", "--corpus", str(tiny_corpus), *TINY, "--out", str(tmp_path / "r")
     )
     assert alone.returncode == 2 and "--init RUN" in alone.stderr and len(alone.stderr.splitlines()) == 1
     assert not (tmp_path / "r").exists()
-    skipped = run_cli(
+    skipped = cli_in_process(
         "train", "probtalk", "--stage", "refiner", "--corpus", str(tiny_corpus), *TINY, "--out", str(tmp_path / "s"),
         "--init", str(stages["vq"]),
     )  # fmt: skip
     assert skipped.returncode == 2 and "holds no predictor network" in skipped.stderr
-    other = run_cli("train", "probtalk", "--stage", "predictor", "--corpus", str(tiny_corpus), *TINY,
+    other = cli_in_process("train", "probtalk", "--stage", "predictor", "--corpus", str(tiny_corpus), *TINY,
                     "--set", "codes=8", "--out", str(tmp_path / "o"), "--init", str(stages["vq"]))  # fmt: skip
     assert other.returncode == 2 and "holds no vq network of these settings" in other.stderr
 
@@ -221,11 +221,11 @@ def test_bad_options_and_folders_are_one_line(stages: dict[str, Path], tmp_path:
         ("iterations=0", "iterations"),
         ("mode=batch", "mode"),
     ):
-        out = run_cli("drive", wav, "--generator", "probtalk", "-G", f"model={stages['model']}", "-G", option,
-                      "--backend", "record", "--out", str(tmp_path / "o"))  # fmt: skip
+        out = cli_in_process("drive", wav, "--generator", "probtalk", "-G", f"model={stages['model']}", "-G", option,
+                             "--backend", "record", "--out", str(tmp_path / "o"))  # fmt: skip
         assert out.returncode == 2 and text in out.stderr and len(out.stderr.splitlines()) == 1, out.stderr
     vq_only = tmp_path / "vq_model"
     assert run_cli("export", str(stages["vq"]), "--out", str(vq_only)).returncode == 0
-    out = run_cli("drive", wav, "--generator", "probtalk", "-G", f"model={vq_only}", "--backend", "record",
-                  "--out", str(tmp_path / "o"))  # fmt: skip
+    out = cli_in_process("drive", wav, "--generator", "probtalk", "-G", f"model={vq_only}", "--backend", "record",
+                         "--out", str(tmp_path / "o"))  # fmt: skip
     assert out.returncode == 2 and "'vq' stage export" in out.stderr and len(out.stderr.splitlines()) == 1

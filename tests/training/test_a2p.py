@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import built_once, require, run_cli
+from tests.conftest import built_once, cli_in_process, require
 
 pytestmark = [require("torch"), require("onnxruntime")]
 
@@ -78,14 +78,16 @@ def test_distillation_starts_from_both_sides_with_students_as_copies(runs: Path)
 
 
 def test_stages_out_of_order_are_one_line(corpus: Path, runs: Path, tmp_path: Path) -> None:
-    no_init = run_cli("train", "a2p", "--stage", "face", "--corpus", str(corpus), *TINY, "--out", str(tmp_path / "f"))
+    no_init = cli_in_process(
+        "train", "a2p", "--stage", "face", "--corpus", str(corpus), *TINY, "--out", str(tmp_path / "f")
+    )
     assert no_init.returncode == 2 and "--init" in no_init.stderr and "Traceback" not in no_init.stderr
-    one_side = run_cli(
+    one_side = cli_in_process(
         "train", "a2p", "--stage", "distill", "--corpus", str(corpus), *TINY, "--out", str(tmp_path / "d"),
         "--init", str(runs / "face"),
     )  # fmt: skip
     assert one_side.returncode == 2 and "vq" in one_side.stderr and "Traceback" not in one_side.stderr
-    wrong = run_cli(
+    wrong = cli_in_process(
         "train", "a2p", "--stage", "guide", "--corpus", str(corpus), *TINY, "--out", str(tmp_path / "g"),
         "--init", str(runs / "lip"),
     )  # fmt: skip
@@ -94,11 +96,13 @@ def test_stages_out_of_order_are_one_line(corpus: Path, runs: Path, tmp_path: Pa
 
 
 def test_two_inits_that_disagree_are_refused(corpus: Path, runs: Path, tmp_path: Path) -> None:
-    other = run_cli(
-        "train", "a2p", "--stage", "lip", "--corpus", str(corpus), *TINY, "--seed", "5", "--out", str(tmp_path / "lip5")
+    from convodrive.training.loop import TrainRequest, train
+
+    other = TrainRequest(
+        "a2p", corpus, preset="tiny", stage="lip", out=tmp_path / "lip5", steps=2, seed=5, device="cpu", progress=False
     )
-    assert other.returncode == 0, other.stderr
-    both = run_cli(
+    assert train(other).step == 2
+    both = cli_in_process(
         "train", "a2p", "--stage", "face", "--corpus", str(corpus), *TINY, "--out", str(tmp_path / "f"),
         "--init", str(runs / "lip"), "--init", str(tmp_path / "lip5"),
     )  # fmt: skip

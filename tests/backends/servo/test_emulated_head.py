@@ -1,11 +1,13 @@
-"""The demo's emulated head stands for servos, which do not share the host's CPU: it answers on time
-while the driver's real-time threads hold its core."""
+"""The emulated devices stand for servos, which do not share the host's CPU: they answer on time while
+the driver's real-time threads hold their core (the demo's head in a process of its own, and every
+emulator's serving thread wherever it runs: a test's, ``convodrive emulate``'s)."""
 
 from __future__ import annotations
 
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -15,9 +17,12 @@ from tests.conftest import needs_realtime, require
 pytestmark = require("hardware")
 
 from convodrive.backends.servo.dynamixel_bus import DynamixelBus, Motor  # noqa: E402
+from convodrive.backends.servo.dynamixel_emulator import start_emulated_head  # noqa: E402
 from convodrive.backends.servo.dynamixel_table import model  # noqa: E402
 from convodrive.backends.servo.emulated_head import emulated_head_process  # noqa: E402
-from convodrive.plumbing.priority import HELPER_FIFO_PRIORITY  # noqa: E402
+from convodrive.backends.servo.feetech_emulator import start_emulated_feetech  # noqa: E402
+from convodrive.backends.servo.maestro_emulator import start_emulated_maestro  # noqa: E402
+from convodrive.plumbing.priority import CLOCK_FIFO_PRIORITY, EMULATOR_FIFO_PRIORITY, HELPER_FIFO_PRIORITY  # noqa: E402
 
 HOG = """
 import os, sys, time
@@ -79,3 +84,28 @@ def test_the_emulated_head_answers_while_the_drivers_realtime_threads_hold_its_c
             hog.wait(timeout=10)
             os.sched_setaffinity(0, cpus)
             bus.disconnect()
+
+
+def _realtime_threads() -> dict[int, int]:
+    """This process's threads under SCHED_FIFO, with their priorities."""
+    found = {}
+    for task in Path("/proc/self/task").iterdir():
+        try:
+            if os.sched_getscheduler(int(task.name)) & ~os.SCHED_RESET_ON_FORK == os.SCHED_FIFO:
+                found[int(task.name)] = os.sched_getparam(int(task.name)).sched_priority
+        except OSError:
+            continue  # a thread that ended meanwhile
+    return found
+
+
+@needs_realtime
+@pytest.mark.parametrize("start", [start_emulated_head, start_emulated_feetech, start_emulated_maestro])
+def test_every_emulator_serves_from_a_thread_above_the_drivers_clock(start) -> None:  # type: ignore[no-untyped-def]
+    before = _realtime_threads()
+    with start():
+        for _ in range(100):  # the serving thread takes its priority as it starts
+            serving = {tid: p for tid, p in _realtime_threads().items() if tid not in before}
+            if serving:
+                break
+            time.sleep(0.01)
+    assert list(serving.values()) == [EMULATOR_FIFO_PRIORITY] and EMULATOR_FIFO_PRIORITY > CLOCK_FIFO_PRIORITY
