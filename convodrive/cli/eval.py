@@ -69,6 +69,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     c.add_argument("--out", required=True, type=Path, help="folder for compare.md, compare.json, compare.png")
     c.add_argument("--samples", type=int, default=4, help="samples per conversation (Div_sample, Var)")
     c.add_argument("--seed", type=int, default=0, help="seed of generators and of the random baseline")
+    c.add_argument(
+        "--seeds",
+        type=int,
+        default=1,
+        metavar="N",
+        help="repeat at seeds SEED..SEED+N-1: each figure is their mean, with their spread (default: 1)",
+    )
     c.add_argument("--max-conversations", type=int, default=None, help="score only the first N conversations")
     c.add_argument(
         "--stratum",
@@ -96,6 +103,7 @@ def run_compare(args: argparse.Namespace) -> int:
             split=args.split,
             samples=args.samples,
             seed=args.seed,
+            seeds=args.seeds,
             max_conversations=args.max_conversations,
             stratum=args.stratum,
             fgd_model=args.fgd_model,

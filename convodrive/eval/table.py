@@ -42,7 +42,8 @@ def _table(columns: list[str], rows: dict[str, dict[str, Any]]) -> list[str]:
     return [header, rule, *(f"| {m} | " + " | ".join(_cell(v) for v in fig.values()) + " |" for m, fig in rows.items())]
 
 
-def markdown(results: dict[str, dict[str, Any]], title: str) -> str:
+def markdown(results: dict[str, dict[str, Any]], title: str, spread: dict[str, dict[str, Any]] | None = None) -> str:
+    """``spread``: each method's standard deviation of each figure over seeds, when several ran."""
     arrows = {"low": " ↓", "high": " ↑", "": ""}
     figures = {m: {n: fig.get(n) for n, _, _ in COLUMNS} for m, fig in results.items()}
     lines = [f"# {title}", "", *_table([f"{n}{arrows[b]}" for n, b, _ in COLUMNS], figures), ""]
@@ -50,6 +51,12 @@ def markdown(results: dict[str, dict[str, Any]], title: str) -> str:
     if ratios:
         lines += [f"## Distances as a ratio to the {FLOOR} takes' (1 is the floor the data sets)", ""]
         lines += [*_table([f"{n} ↓" for n in FLOOR_COLUMNS], ratios), ""]
+    if spread:
+        lines += ["## Standard deviation over the seeds (each seed: the same conversations, new samples)", ""]
+        lines += [
+            *_table(list(FLOOR_COLUMNS), {m: {n: sd.get(n) for n in FLOOR_COLUMNS} for m, sd in spread.items()}),
+            "",
+        ]
     lines += [f"- **{n}**{arrows[b]}: {what}" for n, b, what in COLUMNS]
     return "\n".join(lines) + "\n"
 
@@ -80,7 +87,7 @@ def plot(results: dict[str, dict[str, Any]], path: Path, title: str) -> None:
 def write_outputs(results: dict[str, dict[str, Any]], out: Path, title: str, context: dict[str, Any]) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     md, js, png = out / "compare.md", out / "compare.json", out / "compare.png"
-    write_text_atomic(md, markdown(results, title))
+    write_text_atomic(md, markdown(results, title, context.get("sd_over_seeds")))
     columns = [{"name": n, "better": b, "definition": w} for n, b, w in COLUMNS]
     document = {**context, "columns": columns, "results": results, "ratio_to_ground_truth": floor_ratios(results)}
     write_text_atomic(js, json.dumps(document, indent=2) + "\n")

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from convodrive.audio.source import DyadicAudio
 from convodrive.corpus import ConversationInfo, Corpus
 from convodrive.corpus.stats import feature_stats
 from convodrive.eval.baselines import BASELINES, KNNIndex, ground_truth, random_motion
@@ -30,6 +31,7 @@ from convodrive.eval.table import write_outputs
 from convodrive.generators.base import Generator
 from convodrive.motion import representation as rep
 from convodrive.motion.clip import MotionClip
+from convodrive.motion.representation import FeatureStats
 from convodrive.plugins import GENERATOR_GROUP, load_plugin
 from convodrive.plumbing.errors import UserError
 
@@ -42,6 +44,10 @@ class CompareRequest:
     split: str = "test"
     samples: int = 4
     seed: int = 0
+    seeds: int = 1
+    """Repeats at ``seed``, ``seed + 1``, ...: each figure is their mean, and compare.json keeps each
+    seed's figures and their spread. One seed's FD_g body over 7 conversations x 4 takes moves by a
+    third of a unit between seeds, as much as a model's distance to a 1.5x line."""
     max_conversations: int | None = None
     stratum: str | None = None
     """Score only conversations of this kind (``ConversationInfo.stratum``): a mixed corpus's test
@@ -95,57 +101,97 @@ def _conversations(corpus: Corpus, request: CompareRequest) -> list[Conversation
     return convs[: request.max_conversations] if request.max_conversations else convs
 
 
-def compare(request: CompareRequest, on_method: Callable[[str], None] | None = None) -> CompareResult:
-    _check_names(request)
-    if request.samples < 1:
-        raise UserError(f"--samples must be at least 1, got {request.samples}")
-    corpus = Corpus.open(request.corpus)
-    convs = _conversations(corpus, request)
-    if not convs:
-        raise UserError(f"{request.corpus}: the {request.split} split holds no conversation")
-    stats = feature_stats(corpus, "train")
-    embedder = FGDEmbedder(request.fgd_model)
-    audio = {c.id: corpus.audio(c.id) for c in convs}
-    references = {c.id: corpus.window(c.id, 0, 0, c.frames).clip() for c in convs}
-    masks = {c.id: rep.feature_mask(c.joint_mask, c.face_mask) for c in convs}
+@dataclasses.dataclass
+class _Scoring:
+    """What every method's scoring shares: the conversations, their audio and references, the
+    metrics' statistics and embedder, and the baselines' and generators' state across seeds."""
+
+    request: CompareRequest
+    corpus: Corpus
+    convs: list[ConversationInfo]
+    stats: FeatureStats
+    embedder: FGDEmbedder
+    audio: dict[str, DyadicAudio]
+    references: dict[str, MotionClip]
+    masks: dict[str, np.ndarray]
     knn: KNNIndex | None = None
-    results: dict[str, dict[str, Any]] = {}
-    seconds: dict[str, float] = {}
-    for method in request.generators:
-        name, plugin = method_plugin(method)
-        if on_method is not None:
-            on_method(name)
-        started = time.monotonic()
-        rng = np.random.default_rng([request.seed, len(results)])
-        generators: dict[str, Generator] = {}
+
+    def cases(self, index: int, name: str, plugin: str, seed: int, generators: dict[str, Generator]) -> list[Case]:
+        """Method ``index``'s samples of every conversation at ``seed`` (``generators``: those it
+        loaded already, by their options)."""
+        request, corpus = self.request, self.corpus
+        rng = np.random.default_rng([seed, index])
         cases = []
-        for conv in convs:
+        for conv in self.convs:
             samples: list[MotionClip] | None
             if name == "ground-truth":
                 samples = ground_truth(corpus, conv, request.samples)
             elif name == "random":
                 samples = random_motion(corpus, conv, request.samples, rng)
             elif name == "knn":
-                knn = knn or KNNIndex(corpus)
-                samples = knn.motion(conv, request.samples)
+                self.knn = self.knn or KNNIndex(corpus)
+                samples = self.knn.motion(conv, request.samples)
             else:
                 options = {**conversation_options(plugin, corpus, conv), **request.generator_options.get(name, {})}
                 key = json.dumps(options, sort_keys=True, default=str)
                 if key not in generators:
                     generators[key] = load_plugin(GENERATOR_GROUP, plugin)(options)
-                samples = generators[key].generate(audio[conv.id], seed=request.seed, num_samples=request.samples)
+                samples = generators[key].generate(self.audio[conv.id], seed=seed, num_samples=request.samples)
                 samples = [_fit(s, conv.frames) for s in samples]
             if samples is not None:
-                cases.append(Case(conv.id, references[conv.id], audio[conv.id], masks[conv.id], samples))
-        generated = time.monotonic()
+                cases.append(Case(conv.id, self.references[conv.id], self.audio[conv.id], self.masks[conv.id], samples))
         if not cases:
             raise UserError(
                 f"method '{name}' has nothing to score on the {request.split} split (ground-truth needs at least two takes)"
             )
-        results[name] = score(cases, stats, embedder, seed=request.seed)
+        return cases
+
+
+def _open(request: CompareRequest) -> _Scoring:
+    _check_names(request)
+    if request.samples < 1:
+        raise UserError(f"--samples must be at least 1, got {request.samples}")
+    if request.seeds < 1:
+        raise UserError(f"--seeds must be at least 1, got {request.seeds}")
+    corpus = Corpus.open(request.corpus)
+    convs = _conversations(corpus, request)
+    if not convs:
+        raise UserError(f"{request.corpus}: the {request.split} split holds no conversation")
+    return _Scoring(
+        request,
+        corpus,
+        convs,
+        feature_stats(corpus, "train"),
+        FGDEmbedder(request.fgd_model),
+        {c.id: corpus.audio(c.id) for c in convs},
+        {c.id: corpus.window(c.id, 0, 0, c.frames).clip() for c in convs},
+        {c.id: rep.feature_mask(c.joint_mask, c.face_mask) for c in convs},
+    )
+
+
+def compare(request: CompareRequest, on_method: Callable[[str], None] | None = None) -> CompareResult:
+    scoring = _open(request)
+    seeds = list(range(request.seed, request.seed + request.seeds))
+    results: dict[str, dict[str, Any]] = {}
+    per_seed: dict[str, list[dict[str, Any]]] = {}
+    seconds: dict[str, float] = {}
+    for index, method in enumerate(request.generators):
+        name, plugin = method_plugin(method)
+        if on_method is not None:
+            on_method(name)
+        started, scored = time.monotonic(), 0.0
+        generators: dict[str, Generator] = {}
+        per_seed[name] = []
+        for seed in seeds:
+            cases = scoring.cases(index, name, plugin, seed, generators)
+            generated = time.monotonic()
+            per_seed[name].append(score(cases, scoring.stats, scoring.embedder, seed=seed))
+            scored += time.monotonic() - generated
+        results[name] = mean_figures(per_seed[name])
         seconds[name] = round(time.monotonic() - started, 2)
-        seconds[f"{name} (metrics)"] = round(time.monotonic() - generated, 2)
-    context = {
+        seconds[f"{name} (metrics)"] = round(scored, 2)
+    convs = scoring.convs
+    context: dict[str, Any] = {
         "corpus": str(request.corpus),
         "split": request.split,
         "stratum": request.stratum,
@@ -153,14 +199,33 @@ def compare(request: CompareRequest, on_method: Callable[[str], None] | None = N
         "hours": round(sum(c.frames for c in convs) / 30 / 3600, 3),
         "samples": request.samples,
         "seed": request.seed,
-        "fgd_model": str(embedder.folder.path),
-        "fgd_files": embedder.folder.spec["files"],
+        "seeds": seeds,
+        "fgd_model": str(scoring.embedder.folder.path),
+        "fgd_files": scoring.embedder.folder.spec["files"],
         "seconds": seconds,
     }
+    if len(seeds) > 1:
+        context["per_seed"] = per_seed
+        context["sd_over_seeds"] = {name: spread_figures(runs) for name, runs in per_seed.items()}
     split = f"{request.split} split" + (f" ({request.stratum})" if request.stratum else "")
     title = f"{Path(request.corpus).name}, {split}: {len(convs)} conversations, {request.samples} samples each"
+    if len(seeds) > 1:
+        title += f", the mean of seeds {seeds[0]}-{seeds[-1]}"
     outputs = write_outputs(results, Path(request.out), title, context)
     return CompareResult(results, outputs, seconds)
+
+
+def mean_figures(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Each figure's mean over the runs that define it (None where none does)."""
+    kept = {name: [run[name] for run in runs if run[name] is not None] for name in runs[0]}
+    return {name: round(float(np.mean(v)), 4) if v else None for name, v in kept.items()}
+
+
+def spread_figures(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Each figure's standard deviation over the runs (ddof 1: a handful of seeds is a sample;
+    None where fewer than two runs define it)."""
+    kept = {name: [run[name] for run in runs if run[name] is not None] for name in runs[0]}
+    return {name: round(float(np.std(v, ddof=1)), 4) if len(v) > 1 else None for name, v in kept.items()}
 
 
 def conversation_options(name: str, corpus: Corpus, conv: ConversationInfo) -> dict[str, Any]:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import require, run_cli
+from tests.conftest import cli_in_process, require, run_cli
 
 pytestmark = [require("torch"), require("onnxruntime"), require("matplotlib")]
 
@@ -149,3 +149,33 @@ def test_labels_and_method_options_mistakes_are_one_line(
     )
     assert out.returncode == 2 and message in out.stderr and len(out.stderr.splitlines()) == 1, out.stderr
     assert not (tmp_path / "c").exists()
+
+
+def test_several_seeds_give_each_figures_mean_and_spread(tiny_corpus: Path, fgd_model: Path, tmp_path: Path) -> None:
+    """``--seeds N`` repeats the comparison at N seeds: the table is their mean, the JSON keeps each
+    seed's figures (each one what that seed alone scores) and their spread."""
+    from convodrive.pipeline.compare import CompareRequest, compare
+
+    common = ["--corpus", str(tiny_corpus), "--generators", "ground-truth,random", "--samples", "2"]
+    out = run_cli("eval", "compare", *common, "--seed", "5", "--seeds", "3", "--fgd-model", str(fgd_model),
+                  "--out", str(tmp_path / "cmp"))  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    data = json.loads((tmp_path / "cmp" / "compare.json").read_text())
+    assert data["seeds"] == [5, 6, 7] and [len(runs) for runs in data["per_seed"].values()] == [3, 3]
+    for method, runs in data["per_seed"].items():
+        for name in ("FD_g body", "FGD holistic", "Div_g"):
+            values = [run[name] for run in runs]
+            assert data["results"][method][name] == pytest.approx(sum(values) / 3, abs=1e-3), (method, name)
+    spread = data["sd_over_seeds"]
+    assert spread["ground-truth"]["FD_g body"] == 0.0, "the corpus's own takes do not depend on the seed"
+    assert spread["random"]["FD_g body"] > 0.0, "random motion is drawn anew at each seed"
+    alone = compare(
+        CompareRequest(tiny_corpus, ("ground-truth", "random"), tmp_path / "alone", samples=2, seed=6,
+                       fgd_model=fgd_model)
+    )  # fmt: skip
+    assert alone.results["random"] == data["per_seed"]["random"][1]
+    table = (tmp_path / "cmp" / "compare.md").read_text()
+    assert "the mean of seeds 5-7" in table and "## Standard deviation over the seeds" in table
+    wrong = cli_in_process("eval", "compare", *common, "--seeds", "0", "--out", str(tmp_path / "none"))
+    assert wrong.returncode == 2 and "--seeds must be at least 1, got 0" in wrong.stderr
+    assert not (tmp_path / "none").exists()

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from convodrive.backends.base import Session
-from tests.conftest import needs_realtime, require
+from tests.conftest import needs_realtime, require, wait_until
 
 pytestmark = require("hardware")
 
@@ -118,7 +118,11 @@ def test_close_eases_to_neutral_then_torque_off() -> None:
         backend = DynamixelBackend(options(emu.port))
         backend.open(SPEC, session())
         away = np.clip(SPEC.neutral + 0.3, SPEC.lower, SPEC.upper)
+        first = len(emu.goal_log)
         drive(backend, np.linspace(SPEC.neutral, away, 10))
+        # The frames went out before drive returned; the emulator may still be parsing the last
+        # ones, which must not count as the ease's (the ramp moves away from neutral).
+        assert wait_until(lambda: sum(g.servo_id == 1 for g in emu.goal_log[first:]) >= 10)
         before = len(emu.goal_log)
         t0 = time.monotonic()
         backend.close()

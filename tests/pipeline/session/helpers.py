@@ -28,15 +28,6 @@ def voice(
     return (np.clip(speak(text, sample_rate=ANALYSIS_RATE), -1, 1) * 32767).astype(np.int16)
 
 
-def wait_until(condition, timeout: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(0.01)
-    return False
-
-
 def feed_silence(session: LiveSession, seconds: float, stop: threading.Event) -> threading.Thread:
     """The partner's microphone: 20 ms of silence every 20 ms, until ``stop``."""
 

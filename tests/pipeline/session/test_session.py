@@ -12,7 +12,8 @@ import pytest
 from convodrive.audio.source import ANALYSIS_RATE
 from convodrive.generators.base import Event
 from convodrive.pipeline.session import LiveSession
-from tests.pipeline.session.helpers import CHUNK, CLOSED, feed_silence, mouth, onset, told_at, voice, wait_until
+from tests.conftest import wait_until
+from tests.pipeline.session.helpers import CHUNK, CLOSED, feed_silence, mouth, onset, told_at, voice
 
 pytestmark = [pytest.mark.espeak]
 
