@@ -161,14 +161,13 @@ def run_cli(
     )
 
 
-def wait_until(condition: Callable[[], bool], timeout: float = 10.0) -> bool:
-    """Poll ``condition`` every 10 ms until it holds (True) or ``timeout`` seconds pass (False)."""
+def wait_for(condition: Callable[[], bool], what: str, timeout: float = 10.0) -> None:
+    """Block until ``condition()`` holds, polling every 10 ms; fail the test naming ``what`` after
+    ``timeout`` seconds (which only stops a broken test hanging)."""
     deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
+    while not condition():
+        assert time.monotonic() < deadline, f"waited {timeout:.0f} s for {what}"
         time.sleep(0.01)
-    return False
 
 
 def cli_in_process(*args: str) -> subprocess.CompletedProcess:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +14,7 @@ from convodrive.motion.npz import load_clip
 from convodrive.pipeline import DriveRequest, drive
 from convodrive.retargeting import Retargeter, load_profile
 from convodrive.samples import bundled_dialogue
+from tests.conftest import wait_for
 
 pytestmark = [pytest.mark.hardware]
 
@@ -52,14 +51,6 @@ def test_dialogue_goal_log_matches_the_retargeted_trajectory(tmp_path: Path) -> 
     assert result.report["backends"]["dynamixel"]["health"]["status"] == "ok"
 
 
-def wait_for(condition: Callable[[], bool], what: str, timeout: float = 60.0) -> None:
-    """Block until ``condition()`` holds; a generous ``timeout`` only stops a broken test hanging."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, f"waited {timeout:.0f} s for {what}"
-        time.sleep(0.01)
-
-
 def test_faults_during_a_run_are_named_in_the_run_report(tmp_path: Path) -> None:
     """Faults are injected at a frame of the run, and the run is held (an offline clock waits)
     until the driver has met each, so a loaded machine cannot move them outside the run."""
@@ -71,9 +62,13 @@ def test_faults_during_a_run_are_named_in_the_run_report(tmp_path: Path) -> None
                 status_reads = emu.requests[(4, dp.READ)]
                 emu.hardware_error(4, "overload")
                 emu.vanish(6)
-                wait_for(lambda: emu.requests[(4, dp.READ)] > status_reads, "the driver to read servo 4's error")
+                wait_for(
+                    lambda: emu.requests[(4, dp.READ)] > status_reads,
+                    "the driver to read servo 4's error",
+                    timeout=60.0,
+                )
                 # One group read, then the servo alone, 1 + retries times: after that it is lost.
-                wait_for(lambda: emu.unanswered[6] >= 2 + retries, "the driver to give up on servo 6")
+                wait_for(lambda: emu.unanswered[6] >= 2 + retries, "the driver to give up on servo 6", timeout=60.0)
             elif done == 90:
                 emu.reappear(6)
 
@@ -103,7 +98,7 @@ def test_short_replies_degrade_the_head_and_the_run_goes_on(tmp_path: Path) -> N
         def inject(done: int, _total: int) -> None:
             if done == 30:
                 emu.short_replies(3, servo_id=2)
-                wait_for(lambda: emu.counters["shortened"] >= 3, "the driver to read servo 2 three times")
+                wait_for(lambda: emu.counters["shortened"] >= 3, "the driver to read servo 2 three times", timeout=60.0)
 
         request = DriveRequest(
             audio=bundled_dialogue(),

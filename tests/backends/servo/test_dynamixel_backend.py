@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from convodrive.backends.base import Session
-from tests.conftest import needs_realtime, require, wait_until
+from tests.conftest import needs_realtime, require, wait_for
 
 pytestmark = require("hardware")
 
@@ -122,7 +122,7 @@ def test_close_eases_to_neutral_then_torque_off() -> None:
         drive(backend, np.linspace(SPEC.neutral, away, 10))
         # The frames went out before drive returned; the emulator may still be parsing the last
         # ones, which must not count as the ease's (the ramp moves away from neutral).
-        assert wait_until(lambda: sum(g.servo_id == 1 for g in emu.goal_log[first:]) >= 10)
+        wait_for(lambda: sum(g.servo_id == 1 for g in emu.goal_log[first:]) >= 10, "the ramp's 10 frames")
         before = len(emu.goal_log)
         t0 = time.monotonic()
         backend.close()

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from tests.conftest import require
+from tests.conftest import require, wait_for
 
 pytestmark = require("hardware")
 
@@ -37,13 +37,6 @@ FPS = 30
 
 def options(port: str, **extra: object) -> dict:
     return {**PROFILE.backend_options("feetech"), "port": port, "ease_s": 0.3, "latency_ms": 40, **extra}
-
-
-def wait_for(condition, what: str, timeout: float = 60.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, f"waited {timeout:.0f} s for {what}"
-        time.sleep(0.01)
 
 
 def test_frames_become_one_sync_write_each_and_close_eases_then_torque_off() -> None:
@@ -93,9 +86,13 @@ def test_every_injected_fault_is_named_and_the_run_completes(tmp_path: Path) -> 
                 emu.drop_replies(2, servo_id=1)
                 emu.corrupt_replies(2, servo_id=5)
                 emu.short_replies(2, servo_id=7)
-                wait_for(lambda: emu.unanswered[6] >= 2 + retries, "the driver to give up on servo 6")
-                wait_for(lambda: emu.counters["replies"] > seen + 14, "two more health reads")
-                wait_for(lambda: emu.counters["shortened"] >= 2 and emu.counters["corrupted"] >= 2, "the bad replies")
+                wait_for(lambda: emu.unanswered[6] >= 2 + retries, "the driver to give up on servo 6", timeout=60.0)
+                wait_for(lambda: emu.counters["replies"] > seen + 14, "two more health reads", timeout=60.0)
+                wait_for(
+                    lambda: emu.counters["shortened"] >= 2 and emu.counters["corrupted"] >= 2,
+                    "the bad replies",
+                    timeout=60.0,
+                )
             elif done == 120:
                 emu.reappear(6)
 

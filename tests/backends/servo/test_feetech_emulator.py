@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import time
-
 import pytest
 
 from tests.backends.servo import BUS_LATENCY_MS
-from tests.conftest import require
+from tests.conftest import require, wait_for
 
 pytestmark = require("hardware")
 
@@ -26,13 +24,6 @@ def bus_for(emu: FeetechEmulator, model: str = "sts3215", ids=range(1, 8)) -> Fe
     bus = FeetechBus(emu.port, [Motor(f"s{i}", i, ft.model(model)) for i in ids], latency_ms=BUS_LATENCY_MS)
     bus.connect()
     return bus
-
-
-def wait_until(condition, what: str, timeout: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, f"waited {timeout:.0f} s for {what}"
-        time.sleep(0.005)
 
 
 @pytest.mark.parametrize("end", [0, 1])
@@ -78,7 +69,11 @@ def test_sync_write_then_sync_read_round_trip() -> None:
             assert bus.write("Torque_Enable", name, 1)
         goals = {f"s{i}": 2048 + 40 * i - 150 for i in range(1, 8)}
         bus.sync_write("Goal_Position", goals)
-        wait_until(lambda: all(abs(emu.servo(i).present - goals[f"s{i}"]) < 0.5 for i in range(1, 8)), "the moves")
+        wait_for(
+            lambda: all(abs(emu.servo(i).present - goals[f"s{i}"]) < 0.5 for i in range(1, 8)),
+            "the moves",
+            timeout=30.0,
+        )
         data = bus.sync_read(HEALTH)
         bus.disconnect()
     assert {n: d["Present_Position"] for n, d in data.items()} == goals
@@ -94,7 +89,7 @@ def test_scs_servos_are_big_endian_and_read_one_at_a_time() -> None:
         assert bus.ping(2) == "scs0009"
         assert bus.write("Torque_Enable", "s2", 1) and bus.write("Goal_Velocity", "s2", 0)
         bus.sync_write("Goal_Position", {"s1": 512, "s2": 700, "s3": 512})
-        wait_until(lambda: round(emu.servo(2).present) == 700, "servo 2 to arrive")
+        wait_for(lambda: round(emu.servo(2).present) == 700, "servo 2 to arrive", timeout=30.0)
         data = bus.sync_read(HEALTH)
         bus.disconnect()
     assert emu.servo(2).mem[42:44] == bytes([700 >> 8, 700 & 0xFF])  # high byte first

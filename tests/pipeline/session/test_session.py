@@ -12,7 +12,7 @@ import pytest
 from convodrive.audio.source import ANALYSIS_RATE
 from convodrive.generators.base import Event
 from convodrive.pipeline.session import LiveSession
-from tests.conftest import wait_until
+from tests.conftest import wait_for
 from tests.pipeline.session.helpers import CHUNK, CLOSED, feed_silence, mouth, onset, told_at, voice
 
 pytestmark = [pytest.mark.espeak]
@@ -44,12 +44,16 @@ def test_player_plays_the_voice_and_moves_the_mouth_with_it(tmp_path):
     stop = threading.Event()
     feed_silence(session, 10.0, stop)
     try:
-        assert wait_until(lambda: session.time_at(time.monotonic()) is not None)
+        wait_for(lambda: session.time_at(time.monotonic()) is not None, "the session's clock")
         time.sleep(0.3)
         fed_at = time.monotonic()
         feed_fast(session, pcm, "reply-1")
         session.end_self("reply-1")
-        assert wait_until(lambda: any(r.kind == "finished" for r in reports), timeout=len(pcm) / ANALYSIS_RATE + 5)
+        wait_for(
+            lambda: any(r.kind == "finished" for r in reports),
+            "the finished report",
+            timeout=len(pcm) / ANALYSIS_RATE + 5,
+        )
     finally:
         stop.set()
         session.close()
@@ -83,9 +87,9 @@ def test_player_interruption_drops_unplayed_voice_and_shuts_the_mouth(tmp_path):
     stop = threading.Event()
     feed_silence(session, 10.0, stop)
     try:
-        assert wait_until(lambda: session.time_at(time.monotonic()) is not None)
+        wait_for(lambda: session.time_at(time.monotonic()) is not None, "the session's clock")
         feed_fast(session, pcm, "reply-1")
-        assert wait_until(lambda: any(r.kind == "started" for r in reports))
+        wait_for(lambda: any(r.kind == "started" for r in reports), "the started report")
         time.sleep(1.0)
         cut = time.monotonic()
         session.clear_self()
@@ -140,7 +144,7 @@ def test_follower_follows_the_reported_play_times_with_its_delay(tmp_path):
     stop = threading.Event()
     feed_silence(session, 10.0, stop)
     try:
-        assert wait_until(lambda: session.time_at(time.monotonic()) is not None)
+        wait_for(lambda: session.time_at(time.monotonic()) is not None, "the session's clock")
         time.sleep(0.3)
         feed_fast(session, pcm, "r")
         session.end_self("r")
@@ -168,7 +172,7 @@ def test_follower_ignores_a_chunk_reported_after_the_interruption(tmp_path):
     stop = threading.Event()
     feed_silence(session, 10.0, stop)
     try:
-        assert wait_until(lambda: session.time_at(time.monotonic()) is not None)
+        wait_for(lambda: session.time_at(time.monotonic()) is not None, "the session's clock")
         feed_fast(session, pcm, "r")
         speaker = FakeSpeaker(session, pcm, "r", stop_at=time.monotonic() + 1.2)
         speaker.start()
@@ -192,7 +196,7 @@ def test_events_reach_the_generator_on_the_time_line(tmp_path):
     stop = threading.Event()
     feed_silence(session, 5.0, stop)
     try:
-        assert wait_until(lambda: session.time_at(time.monotonic()) is not None)
+        wait_for(lambda: session.time_at(time.monotonic()) is not None, "the session's clock")
         now = time.monotonic()
         session.event(Event.USER_TURN_END, at=now)
         session.event(Event.TOOL_START, at=now + 0.2, name="lookup")
