@@ -215,17 +215,20 @@ def compare(request: CompareRequest, on_method: Callable[[str], None] | None = N
     return CompareResult(results, outputs, seconds)
 
 
+def _defined(runs: list[dict[str, Any]]) -> dict[str, list[float]]:
+    """Each figure's values over the runs that define it."""
+    return {name: [run[name] for run in runs if run[name] is not None] for name in runs[0]}
+
+
 def mean_figures(runs: list[dict[str, Any]]) -> dict[str, Any]:
     """Each figure's mean over the runs that define it (None where none does)."""
-    kept = {name: [run[name] for run in runs if run[name] is not None] for name in runs[0]}
-    return {name: round(float(np.mean(v)), 4) if v else None for name, v in kept.items()}
+    return {name: round(float(np.mean(v)), 4) if v else None for name, v in _defined(runs).items()}
 
 
 def spread_figures(runs: list[dict[str, Any]]) -> dict[str, Any]:
     """Each figure's standard deviation over the runs (ddof 1: a handful of seeds is a sample;
     None where fewer than two runs define it)."""
-    kept = {name: [run[name] for run in runs if run[name] is not None] for name in runs[0]}
-    return {name: round(float(np.std(v, ddof=1)), 4) if len(v) > 1 else None for name, v in kept.items()}
+    return {name: round(float(np.std(v, ddof=1)), 4) if len(v) > 1 else None for name, v in _defined(runs).items()}
 
 
 def conversation_options(name: str, corpus: Corpus, conv: ConversationInfo) -> dict[str, Any]:

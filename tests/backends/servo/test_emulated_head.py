@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -22,6 +23,7 @@ from convodrive.backends.servo.dynamixel_table import model  # noqa: E402
 from convodrive.backends.servo.emulated_head import emulated_head_process  # noqa: E402
 from convodrive.backends.servo.feetech_emulator import start_emulated_feetech  # noqa: E402
 from convodrive.backends.servo.maestro_emulator import start_emulated_maestro  # noqa: E402
+from convodrive.backends.servo.pty_server import PtyDevice  # noqa: E402
 from convodrive.plumbing.priority import CLOCK_FIFO_PRIORITY, EMULATOR_FIFO_PRIORITY, HELPER_FIFO_PRIORITY  # noqa: E402
 
 HOG = """
@@ -100,7 +102,7 @@ def _realtime_threads() -> dict[int, int]:
 
 @needs_realtime
 @pytest.mark.parametrize("start", [start_emulated_head, start_emulated_feetech, start_emulated_maestro])
-def test_every_emulator_serves_from_a_thread_above_the_drivers_clock(start) -> None:  # type: ignore[no-untyped-def]
+def test_every_emulator_serves_from_a_thread_above_the_drivers_clock(start: Callable[[], PtyDevice]) -> None:
     before = _realtime_threads()
     with start():
         for _ in range(100):  # the serving thread takes its priority as it starts
