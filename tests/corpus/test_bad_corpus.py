@@ -9,11 +9,11 @@ import numpy as np
 import soundfile as sf
 
 from convodrive.corpus import Corpus, Recording
-from tests.conftest import run_cli
+from tests.conftest import cli_in_process, run_cli
 
 
 def _fails_with(folder: Path, *fragments: str) -> str:
-    result = run_cli("corpus", "info", str(folder))
+    result = cli_in_process("corpus", "info", str(folder))
     assert result.returncode == 2, result.stdout + result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in result.stderr, result.stderr

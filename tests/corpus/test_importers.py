@@ -20,7 +20,7 @@ from convodrive.corpus.stats import feature_stats
 from convodrive.motion import representation, rotations
 from convodrive.motion.channels import ARKIT_NAMES
 from convodrive.motion.skeleton import JOINT_INDEX, JOINT_NAMES
-from tests.conftest import run_cli
+from tests.conftest import cli_in_process, run_cli
 from tests.corpus import sources
 
 
@@ -38,7 +38,7 @@ def imported(kind: str, src: Path, out: Path, *extra: str) -> tuple[Corpus, str]
 
 
 def fails(kind: str, src: Path, out: Path, *fragments: str, extra: tuple[str, ...] = ()) -> None:
-    result = run_cli("corpus", "import", kind, str(src), "--out", str(out), *extra)
+    result = cli_in_process("corpus", "import", kind, str(src), "--out", str(out), *extra)
     assert result.returncode == 2, result.stdout + result.stderr
     line = result.stderr.strip()
     assert len(line.splitlines()) == 1 and "Traceback" not in line, line

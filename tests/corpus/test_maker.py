@@ -15,7 +15,7 @@ from convodrive.corpus.maker import SPEAKERS, make_corpus, plan_corpus
 from convodrive.eval.behaviour import GAZE_AT_PARTNER_DEG
 from convodrive.generators.procedural import ProceduralGenerator
 from convodrive.motion.skeleton import JOINT_INDEX
-from tests.conftest import run_cli
+from tests.conftest import cli_in_process, run_cli
 
 
 def test_plan_spreads_voices_languages_and_speakers() -> None:
@@ -129,14 +129,14 @@ def test_make_is_deterministic_whatever_the_jobs(tmp_path: Path) -> None:
     ],
 )
 def test_bad_make_options_are_one_line(tmp_path: Path, args: list[str], message: str) -> None:
-    result = run_cli("corpus", "make", "--out", str(tmp_path / "c"), *args)
+    result = cli_in_process("corpus", "make", "--out", str(tmp_path / "c"), *args)
     assert result.returncode == 2 and message in result.stderr and len(result.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "c").exists()
 
 
 def test_make_refuses_a_folder_in_use_and_touches_nothing(tmp_path: Path) -> None:
     (tmp_path / "mine.txt").write_text("keep")
-    result = run_cli("corpus", "make", "--hours", "0.01", "--out", str(tmp_path))
+    result = cli_in_process("corpus", "make", "--hours", "0.01", "--out", str(tmp_path))
     assert result.returncode == 2 and "not an empty folder" in result.stderr
     assert [p.name for p in tmp_path.iterdir()] == ["mine.txt"]
 

@@ -10,7 +10,7 @@ from convodrive.cli.main import main
 from convodrive.generators.procedural import ProceduralGenerator
 from convodrive.motion.clip import MotionClip
 from convodrive.motion.npz import save_clip
-from tests.conftest import run_cli
+from tests.conftest import cli_in_process
 from tests.procedural_dialogues import make
 
 pytestmark = [pytest.mark.espeak]
@@ -45,12 +45,12 @@ def test_swapped_channels_break_lip_sync(files, capsys):
 
 def test_missing_file_and_length_mismatch_are_one_line_errors(files, tmp_path):
     wav, motion, clip = files
-    r = run_cli("eval", "behaviour", str(tmp_path / "nope.npz"), str(wav))
+    r = cli_in_process("eval", "behaviour", str(tmp_path / "nope.npz"), str(wav))
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "nope.npz" in r.stderr
     short = save_clip(MotionClip.neutral(clip.num_frames // 2), tmp_path / "short.npz")
-    r = run_cli("eval", "behaviour", str(short), str(wav))
+    r = cli_in_process("eval", "behaviour", str(short), str(wav))
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "frames" in r.stderr and "Traceback" not in r.stderr
-    r = run_cli("eval", "behaviour", str(motion), str(wav), "--channels", "x")
+    r = cli_in_process("eval", "behaviour", str(motion), str(wav), "--channels", "x")
     assert r.returncode == 2 and r.stderr.count("\n") == 1
 
 

@@ -70,14 +70,14 @@ def test_a_stratum_scores_only_its_kind_of_conversation(tiny_corpus: Path, fgd_m
         data = json.loads((tmp_path / kind / "compare.json").read_text())
         assert (data["stratum"], data["conversations"]) == (kind, count)
         assert f"test split ({kind}): {count} conversations" in (tmp_path / kind / "compare.md").read_text()
-    out = run_cli(*args, "--stratum", "paired", "--out", str(tmp_path / "none"))
+    out = cli_in_process(*args, "--stratum", "paired", "--out", str(tmp_path / "none"))
     assert out.returncode == 2 and len(out.stderr.splitlines()) == 1, out.stderr
     assert "no conversation of kind 'paired' in the test split (kinds there: recorded, synthesised)" in out.stderr
     assert not (tmp_path / "none").exists()
 
 
 def test_an_unknown_method_is_one_line_before_any_work(tiny_corpus: Path, tmp_path: Path) -> None:
-    out = run_cli(
+    out = cli_in_process(
         "eval",
         "compare",
         "--corpus",
@@ -144,7 +144,7 @@ def test_one_generator_scored_under_two_labels_with_options_of_its_own(
 def test_labels_and_method_options_mistakes_are_one_line(
     tiny_corpus: Path, tmp_path: Path, methods: str, options: list[str], message: str
 ) -> None:
-    out = run_cli(
+    out = cli_in_process(
         "eval", "compare", "--corpus", str(tiny_corpus), "--generators", methods, *options, "--out", str(tmp_path / "c")
     )
     assert out.returncode == 2 and message in out.stderr and len(out.stderr.splitlines()) == 1, out.stderr

@@ -16,7 +16,7 @@ import torch  # noqa: E402
 
 from convodrive.neural import Graph, load_model_folder  # noqa: E402
 from convodrive.plumbing.errors import UserError  # noqa: E402
-from convodrive.training.export import PARITY_TOLERANCE, export_graph, export_model, parity, restore  # noqa: E402
+from convodrive.training.export import PARITY_TOLERANCE, export_graph, parity, restore  # noqa: E402
 from convodrive.training.recipe import GraphSpec  # noqa: E402
 
 
@@ -50,19 +50,6 @@ def test_export_checks_parity_at_three_sizes_and_writes_a_verified_folder(fgd_ru
     assert got.shape == (11, config.latent) and np.abs(got - want).max() <= PARITY_TOLERANCE
 
 
-def test_int8_quantises_matmuls_and_measures_the_cost(fgd_run: Path, tmp_path: Path) -> None:
-    export_model(fgd_run, tmp_path / "q", int8=True)
-    meta = json.loads((tmp_path / "q" / "model.json").read_text())
-    cost = meta["int8"]["cost"]["encoder_body"]
-    assert 0 < cost["relative_rms_err"] < 0.1
-    assert meta["graphs"]["encoder_body"]["file"] == "encoder_body.int8.onnx"
-    import onnx
-
-    ops = {n.op_type for n in onnx.load(str(tmp_path / "q" / "encoder_body.int8.onnx")).graph.node}
-    assert "MatMulInteger" in ops or "DynamicQuantizeLinear" in ops
-    assert "ConvInteger" not in ops  # convolutions stay float
-
-
 def test_an_int8_export_keeps_the_graphs_named_float(fgd_run: Path, tmp_path: Path) -> None:
     out = run_cli("export", str(fgd_run), "--out", str(tmp_path / "mixed"), "--int8", "--float", "encoder_face")
     assert out.returncode == 0, out.stderr
@@ -80,6 +67,13 @@ def test_an_int8_export_keeps_the_graphs_named_float(fgd_run: Path, tmp_path: Pa
     folder = load_model_folder(tmp_path / "mixed")  # its hashes check out
     assert folder.graph_path("encoder_face").name == "encoder_face.onnx"
     assert "kept float: `encoder_face`" in (tmp_path / "mixed" / "MODEL_CARD.md").read_text()
+    # An int8 graph quantises its MatMuls, measured against the float graph; convolutions stay float.
+    assert 0 < meta["int8"]["cost"]["encoder_body"]["relative_rms_err"] < 0.1
+    import onnx
+
+    ops = {n.op_type for n in onnx.load(str(tmp_path / "mixed" / "encoder_body.int8.onnx")).graph.node}
+    assert "MatMulInteger" in ops or "DynamicQuantizeLinear" in ops
+    assert "ConvInteger" not in ops
 
 
 @pytest.mark.parametrize(
@@ -115,9 +109,9 @@ def test_a_shape_baked_into_a_graph_fails_the_parity_check(tmp_path: Path) -> No
 
 
 def test_export_mistakes_are_one_line(tmp_path: Path) -> None:
-    out = run_cli("export", str(tmp_path / "nothing"), "--out", str(tmp_path / "m"))
+    out = cli_in_process("export", str(tmp_path / "nothing"), "--out", str(tmp_path / "m"))
     assert out.returncode == 2 and "no such checkpoint" in out.stderr and len(out.stderr.splitlines()) == 1
     (tmp_path / "notes").mkdir()
     (tmp_path / "notes" / "a.txt").write_text("mine")
-    out = run_cli("export", str(tmp_path / "nothing"), "--out", str(tmp_path / "notes"))
+    out = cli_in_process("export", str(tmp_path / "nothing"), "--out", str(tmp_path / "notes"))
     assert out.returncode == 2 and (tmp_path / "notes" / "a.txt").exists()

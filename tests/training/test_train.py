@@ -155,5 +155,5 @@ def test_a_corpus_with_a_missing_shard_is_one_line(tiny_corpus: Path, tmp_path: 
     shutil.copytree(tiny_corpus, broken)
     shard = sorted((broken / "shards").iterdir())[0]
     shard.unlink()
-    out = run_cli("train", "fgd", "--corpus", str(broken), *TINY, "--out", str(tmp_path / "run"))
+    out = cli_in_process("train", "fgd", "--corpus", str(broken), *TINY, "--out", str(tmp_path / "run"))
     assert out.returncode == 2 and shard.name in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr
