@@ -83,6 +83,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="KIND",
         help="score only conversations of one kind (synthesised, paired, recorded: corpus make's)",
     )
+    c.add_argument(
+        "--speakers",
+        default="",
+        metavar="NAME[,NAME]",
+        help="score only these speakers' conversations (the corpus's speaker styles; default: all)",
+    )
     c.add_argument("--fgd-model", type=Path, default=None, help="FGD embedder model folder (default: the shipped one)")
     c.set_defaults(func=run_compare)
 
@@ -106,6 +112,7 @@ def run_compare(args: argparse.Namespace) -> int:
             seeds=args.seeds,
             max_conversations=args.max_conversations,
             stratum=args.stratum,
+            speakers=tuple(n.strip() for n in args.speakers.split(",") if n.strip()),
             fgd_model=args.fgd_model,
             generator_options=options,
         ),

@@ -76,6 +76,25 @@ def test_a_stratum_scores_only_its_kind_of_conversation(tiny_corpus: Path, fgd_m
     assert not (tmp_path / "none").exists()
 
 
+def test_speakers_scores_only_their_conversations(tiny_corpus: Path, fgd_model: Path, tmp_path: Path) -> None:
+    """Speaker styles score far apart, so ``--speakers`` scores some alone; a speaker the split lacks
+    is one line naming those it has."""
+    manifest = json.loads((tiny_corpus / "manifest.json").read_text())
+    lively = sum(c["split"] == "train" and c["speaker"] == "lively" for c in manifest["conversations"])
+    args = ["eval", "compare", "--corpus", str(tiny_corpus), "--split", "train", "--generators", "random"]
+    out = run_cli(
+        *args, "--samples", "1", "--speakers", "lively", "--fgd-model", str(fgd_model), "--out", str(tmp_path / "l")
+    )
+    assert out.returncode == 0, out.stderr
+    data = json.loads((tmp_path / "l" / "compare.json").read_text())
+    assert (data["speakers"], data["conversations"]) == (["lively"], lively) and 0 < lively < 6
+    assert f"train split, speakers lively: {lively} conversations" in (tmp_path / "l" / "compare.md").read_text()
+    out = cli_in_process(*args, "--speakers", "nobody,noone", "--out", str(tmp_path / "none"))
+    assert out.returncode == 2 and len(out.stderr.splitlines()) == 1, out.stderr
+    assert "no conversation of speaker nobody, noone in the train split (speakers there: calm, lively)" in out.stderr
+    assert not (tmp_path / "none").exists()
+
+
 def test_an_unknown_method_is_one_line_before_any_work(tiny_corpus: Path, tmp_path: Path) -> None:
     out = cli_in_process(
         "eval",
