@@ -295,10 +295,13 @@ class Recording(threading.Thread):
     Capture times are worked out afterwards, from every callback's timing: a server may revise
     its reported latency once a stream settles (by tens of milliseconds when a sink starts
     playing), so each sample's time is the median of the timings from ``BEFORE`` seconds before it
-    to ``AFTER`` seconds after it, leaving out the first ``SETTLE`` seconds of the stream.
+    to ``AFTER`` seconds after it, leaving out the first ``SETTLE`` seconds of the stream. A server
+    that stalls (starved of CPU, a sink that stops) moves the time line by the stall: the timings
+    jump by more than ``JUMP`` seconds there, and each sample takes the median of its own side
+    only (a monitor stalled 1.7 s once had every sample before the stall timed after it).
     """
 
-    BEFORE, AFTER, SETTLE = 2.0, 8.0, 1.0
+    BEFORE, AFTER, SETTLE, JUMP = 2.0, 8.0, 1.0, 0.1
 
     def __init__(self, source: MicrophoneInput) -> None:
         super().__init__(name="monitor", daemon=True)
@@ -346,5 +349,9 @@ class Recording(threading.Thread):
         lo = np.searchsorted(timing[:, 0], flat - self.BEFORE * rate)
         hi = np.searchsorted(timing[:, 0], flat + self.AFTER * rate, side="right")
         nearest = np.clip(np.searchsorted(timing[:, 0], flat), 0, len(timing) - 1)
+        starts = np.concatenate([[0], np.flatnonzero(np.abs(np.diff(timing[:, 1])) > self.JUMP) + 1, [len(timing)]])
+        side = np.clip(np.searchsorted(timing[starts[1:-1], 0], flat, side="right"), 0, len(starts) - 2)
+        lo, hi = np.maximum(lo, starts[side]), np.minimum(hi, starts[side + 1])
+        nearest = np.clip(nearest, starts[side], starts[side + 1] - 1)
         anchors = [np.median(timing[a:b, 1]) if b > a else timing[n, 1] for a, b, n in zip(lo, hi, nearest)]
         return (np.asarray(anchors) + flat / rate).reshape(index.shape)
