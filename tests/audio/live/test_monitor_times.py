@@ -20,8 +20,9 @@ class _Device:
 
     def __init__(self, anchor_at: Callable[[float], float]) -> None:
         self.rate = RATE
-        jitter = np.random.default_rng(0).uniform(0.0, 0.004, 1200)  # callbacks come a little late
-        self.timing = [(first, anchor_at(first / RATE) + jitter[i]) for i, first in enumerate(range(0, 12 * RATE, 160))]
+        firsts = range(0, 12 * RATE, 160)  # 10 ms callbacks over 12 s
+        late = np.random.default_rng(0).uniform(0.0, 0.004, len(firsts))  # callbacks come a little late
+        self.timing = [(first, anchor_at(first / RATE) + delay) for first, delay in zip(firsts, late)]
 
 
 def _times(anchor_at: Callable[[float], float], seconds: list[float]) -> np.ndarray:
