@@ -32,6 +32,7 @@ from convodrive.audio.source import DyadicAudio  # noqa: E402
 from convodrive.audio.synth import add_bleed  # noqa: E402
 from convodrive.eval.behaviour import behaviour_figures  # noqa: E402
 from convodrive.plugins import GENERATOR_GROUP, load_plugin  # noqa: E402
+from convodrive.plumbing.safe_yaml import parse_scalar  # noqa: E402
 
 TARGETS = {"jaw_r": 0.7, "shut_self_silent": 0.95, "shut_only_partner": 0.97, "head_talk_listen": 2.0}
 """Each figure's lowest acceptable value, clean and with bleed alike."""
@@ -69,7 +70,7 @@ def named_generators(names: str, models: Sequence[str], variants: Sequence[str] 
             pairs = [pair.partition("=") for pair in value.split(",")]
             if not (name and kind and value) or (flag == "--variant" and not all(k and eq for k, eq, _ in pairs)):
                 raise SystemExit(f"bench_real_voices: {flag} {spec}: expected NAME=GENERATOR:{form}")
-            options = {k: v for k, _, v in pairs} if flag == "--variant" else {"model": value}
+            options = {k: parse_scalar(v) for k, _, v in pairs} if flag == "--variant" else {"model": value}
             made[name] = load_plugin(GENERATOR_GROUP, kind)(options)
     return made
 

@@ -14,7 +14,7 @@ import json
 
 import pytest
 
-from bench.bench_real_voices import TARGETS
+from bench.bench_real_voices import TARGETS, named_generators
 from bench.bench_real_voices import figures as real_voice_figures
 from convodrive.audio.source import DyadicAudio
 from convodrive.audio.synth import add_bleed
@@ -60,3 +60,11 @@ def test_every_generator_on_real_voices(name: str, real_dialogue) -> None:  # no
     assert bleed["shut_self_silent"] >= SHUT_SILENT
     assert bleed["shut_only_partner"] >= SHUT_PARTNER
     assert bleed["head_talk_listen"] >= HEAD_RATIO
+
+
+def test_a_variants_values_keep_their_types() -> None:
+    """``--variant NAME=GENERATOR:KEY=VALUE``: a boolean or a number reaches the generator as one
+    (the options refuse the text 'false' for a bool)."""
+    made = named_generators("", [], ["still=procedural:gestures=false,expressiveness=0.5"])
+    assert made["still"].options.gestures is False
+    assert made["still"].options.expressiveness == 0.5

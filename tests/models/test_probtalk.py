@@ -155,6 +155,30 @@ def test_the_pq_vae_error_is_l1_or_its_square() -> None:
         dataclasses.replace(TINY, vq_loss="huber").check()
 
 
+def test_the_refiner_error_is_l1_or_its_square() -> None:
+    """``refiner_loss``: the paper's L1, or squared error, whose optimum is each channel's mean
+    rather than its median, so a mouth shape held in a few frames of ten is not flattened away."""
+    from convodrive.training.recipes.probtalk import refiner_loss
+
+    x = _batch()
+    x["mask"][..., 7] = 0
+    known = torch.zeros(4, 48, 1)
+    for kind in ("l1", "l2"):
+        torch.manual_seed(0)
+        config = dataclasses.replace(TINY, refiner_loss=kind, refiner_noise=0.0)
+        model = ProbTalk(config, DIM, BANDS, SPEAKERS, stage="refiner").eval()
+        with torch.no_grad():
+            _, figures = refiner_loss(model, x, known, torch.Generator().manual_seed(0))
+            coarse = model.vq.decode(model.vq.encode(x["motion"] * x["mask"]))  # an untrained refiner passes it
+        error = (coarse - x["motion"])[..., torch.arange(DIM) != 7]
+        expected = error.abs().mean() if kind == "l1" else error.square().mean()
+        assert set(figures) == {kind, "velocity", f"coarse_{kind}"}
+        assert float(figures[kind]) == pytest.approx(float(expected), rel=1e-5)
+        assert float(figures[f"coarse_{kind}"]) == pytest.approx(float(expected), rel=1e-5)
+    with pytest.raises(ValueError, match="refiner_loss"):
+        dataclasses.replace(TINY, refiner_loss="huber").check()
+
+
 def test_the_acceleration_term_adds_the_weighted_second_difference_error() -> None:
     """``acceleration_weight``: the PQ-VAE's loss gains the weighted error of the second difference,
     which penalises frame-to-frame shiver that the velocity term lets through; 0 leaves it out."""

@@ -7,10 +7,10 @@ Each window of audio becomes motion in four graph calls and a NumPy loop:
 2. ``predictor_step`` (once per MaskGIT pass, T passes): token ids + that memory -> logits; the
    sampling loop between passes is ``convodrive.neural.maskgit`` (NumPy);
 3. ``vq_decoder``: codes -> coarse motion; the known frames are copied in;
-4. ``refiner`` (only with ``refine``): coarse motion + audio + known mask -> the window's motion.
-   The shipped refiner, trained with L1, made the face worse on the test split (its model card),
-   so the default is the decoder's motion, the body low-passed (``smooth``, the base class's)
-   since the PQ-VAE's decoder shivers.
+4. ``refiner`` (with ``refine``, the default): coarse motion + audio + known mask -> the window's
+   motion; the body is then low-passed (``smooth``, the base class's) since the PQ-VAE's decoder
+   shivers. The shipped refiner learned with squared error (``refiner_loss``); an L1 one flattens
+   the mouth's brief shapes, and with it ``refine=false`` scores better (see the model card).
 
 K takes (``--samples K``) are the batch of the same calls. With ``face_temperature`` (default on)
 the memory and MaskGIT passes run for 2K rows: each take's body comes from its draw at
@@ -73,8 +73,8 @@ class ProbTalkOptions(LearnedOptions):
     speaker: str = option("", help="speaker style the model learned (its model card lists them); empty: the first")
     dyadic: bool = option(True, help="hear the partner's channel (false: the model hears silence there)")
     refine: bool = option(
-        False,
-        help="run the refiner (the shipped one made the face worse on the test split: see its model card)",
+        True,
+        help="run the refiner (false: the PQ-VAE decoder's motion; see the model card for what each scores)",
     )
     smooth: float = option(
         1.0,
