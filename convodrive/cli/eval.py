@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from convodrive.audio.source import AudioSource, ChannelMap
-from convodrive.cli.options import scoped_key_value
+from convodrive.cli.options import name_list, scoped_key_value
 from convodrive.eval.segments import load_segments
 from convodrive.motion.npz import load_clip
 from convodrive.plumbing.errors import UserError
@@ -85,7 +85,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     c.add_argument(
         "--speakers",
-        default="",
+        type=name_list,
+        default=(),
         metavar="NAME[,NAME]",
         help="score only these speakers' conversations (the corpus's speaker styles; default: all)",
     )
@@ -112,7 +113,7 @@ def run_compare(args: argparse.Namespace) -> int:
             seeds=args.seeds,
             max_conversations=args.max_conversations,
             stratum=args.stratum,
-            speakers=tuple(n.strip() for n in args.speakers.split(",") if n.strip()),
+            speakers=args.speakers,
             fgd_model=args.fgd_model,
             generator_options=options,
         ),

@@ -21,6 +21,10 @@ def masked_l2(a: torch.Tensor, b: torch.Tensor, weight: torch.Tensor) -> torch.T
     return ((a - b).square() * weight).sum() / weight.sum().clamp(min=1.0)
 
 
+MASKED_ERRORS = {"l1": masked_l1, "l2": masked_l2}
+"""The masked errors by the names a config gives them (``vq_loss``, ``refiner_loss``)."""
+
+
 class AudioNorm(nn.Module):
     """Log-mel (B, frames, voices, bands) to zero mean and unit spread per band, with the train
     split's statistics (buffers, so that they travel with the weights into every export).

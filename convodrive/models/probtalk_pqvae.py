@@ -7,7 +7,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from convodrive.models.common import masked_l1, masked_l2
+from convodrive.models.common import MASKED_ERRORS
 from convodrive.models.probtalk_blocks import ResidualStack, conv_block
 from convodrive.models.probtalk_config import ProbTalkConfig
 
@@ -209,7 +209,7 @@ class PQVAE(nn.Module):
         the channels a corpus lacks, ``weight`` (D,) weighs the others (None: alike). The paper's
         error is L1; ``vq_loss="l2"`` squares it instead."""
         recon, codes, commitment = self(motion * mask, generator)
-        error = masked_l1 if self.config.vq_loss == "l1" else masked_l2
+        error = MASKED_ERRORS[self.config.vq_loss]
         counted = mask if weight is None else mask * weight
         rec = error(recon, motion, counted)
         vel = error(recon.diff(dim=1), motion.diff(dim=1), counted)

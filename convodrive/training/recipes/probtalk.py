@@ -27,7 +27,7 @@ import torch
 import torch.nn.functional as F
 
 from convodrive.eval.distribution import fd_g
-from convodrive.models.common import masked_l1, masked_l2
+from convodrive.models.common import MASKED_ERRORS
 from convodrive.models.probtalk import STAGES, ProbTalk
 from convodrive.models.probtalk_config import ProbTalkConfig
 from convodrive.motion import representation as rep
@@ -365,7 +365,8 @@ def refiner_loss(
     weight = part_weights(config, mask.device)
     counted = mask if weight is None else mask * weight
     free = counted * (1 - known)
-    error, name = (masked_l1, "l1") if config.refiner_loss == "l1" else (masked_l2, "l2")
+    name = config.refiner_loss
+    error = MASKED_ERRORS[name]
     rec = error(refined, motion, free)
     vel = error(refined.diff(dim=1), motion.diff(dim=1), counted)
     coarse = error(combined, motion, free)
