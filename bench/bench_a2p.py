@@ -124,13 +124,14 @@ def guide_torch(preset: str) -> dict[str, float]:
 def guide_onnx(folder: Path, threads: int) -> float:
     """Seconds for 80 guide tokens through the runtime's step graph, cache and nucleus sampling."""
     gen = A2PGenerator({"model": str(folder), "threads": threads, "device": "cpu"})
-    state = gen.stream_state(1)
-    band = np.repeat(gen.silent_second[None, None], gen.span, axis=1)
-    step = gen._guide_step(band)
+    guides = gen.guides
+    state = guides.state(1)
+    band = np.repeat(guides.silent_second[None, None], guides.span, axis=1)
+    step = guides.step_function(band)
     rng = [np.random.default_rng(0)]
     started = time.perf_counter()
-    for _ in range(TOKENS // gen.levels):
-        sample_tokens(step, state.cache, gen.levels, gen.options.top_p, rng)
+    for _ in range(TOKENS // guides.levels):
+        sample_tokens(step, state.cache, guides.levels, guides.top_p, rng, guides.temperature)
     assert isinstance(state.cache, KVCache)
     return round(time.perf_counter() - started, 4)
 

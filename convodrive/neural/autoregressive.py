@@ -74,15 +74,17 @@ def sample_tokens(
     count: int,
     p: float,
     rngs: Sequence[np.random.Generator],
+    temperature: float = 1.0,
 ) -> np.ndarray:
-    """(B, count) int64 tokens continuing ``cache`` (which advances by ``count`` positions)."""
+    """(B, count) int64 tokens continuing ``cache`` (which advances by ``count`` positions), each
+    drawn from the nucleus of mass ``p`` of the logits divided by ``temperature``."""
     out = np.empty((len(rngs), count), np.int64)
     for i in range(count):
         assert cache.token is not None
         position = np.full((len(rngs), 1), cache.position, np.int64)
         logits, keys, values = step(cache.token, position, cache.keys, cache.values)
         uniforms = np.array([rng.random() for rng in rngs])
-        token = top_p(logits, p, uniforms)
+        token = top_p(np.asarray(logits) / temperature, p, uniforms)
         cache.advance(keys, values, token)
         out[:, i] = token
     return out

@@ -24,7 +24,7 @@ from tests.corpora import dyadic_audio
 pytestmark = [require("torch"), require("onnxruntime"), pytest.mark.timeout(900)]
 """The first test also pays for the session's model folder: twelve graphs exported, each checked for parity."""
 
-from convodrive.generators.a2p.generator import BODY, FACE, HEAD, A2PGenerator  # noqa: E402
+from convodrive.generators.a2p.generator import BODY, FACE, GUIDE_TEMPERATURE, HEAD, A2PGenerator  # noqa: E402
 
 
 @pytest.fixture
@@ -64,7 +64,7 @@ def test_each_window_continues_from_its_context_and_the_guide_carries_on(model: 
         out = run(audio, context, rngs, state=state)
         contexts.append(None if context is None else context.copy())
         outputs.append(out.copy())
-        seconds.append(state.next_second)
+        seconds.append(state.guide.next_second)
         if context is not None:  # the known frames are kept, face and body
             for part in (FACE, BODY):
                 np.testing.assert_allclose(out[:, : context.shape[1], part], context[..., part], atol=1e-6)
@@ -143,6 +143,20 @@ def test_guidance_and_sampler_options_change_the_motion(model: Path) -> None:
     one_face = A2PGenerator({"model": str(model), "sampler": "distilled", "steps": 2, "face_steps": 1})
     assert np.abs(one_face.generate(audio)[0].face - two.face).max() > 1e-5
     assert one_face.report()["face_steps"] == 1
+
+
+def test_the_guide_temperature_moves_the_body_and_leaves_the_face(model: Path) -> None:
+    """The guide poses' temperature reaches the body through its guide poses only: the face,
+    sampled before the guide, is the same to the bit (the guide draws one uniform a code whatever
+    the temperature), and the default is ``GUIDE_TEMPERATURE``."""
+    audio = dyadic_audio(2.5)
+    options = {"model": str(model), "steps": 2, "face_steps": 2}
+    default = A2PGenerator(options)
+    assert default.report()["guide_temperature"] == GUIDE_TEMPERATURE
+    warm, cold = (A2PGenerator({**options, "guide_temperature": t}).generate(audio, seed=3)[0] for t in (1.2, 0.2))
+    np.testing.assert_array_equal(default.generate(audio, seed=3)[0].pose, warm.pose)
+    assert np.abs(warm.pose - cold.pose).max() > 1e-4
+    np.testing.assert_array_equal(warm.face, cold.face)
 
 
 def test_the_teachers_guide_the_head_harder_than_the_rest_of_the_body(model: Path) -> None:

@@ -58,15 +58,14 @@ def test_every_sampler_runs_the_shipped_graphs() -> None:
 @pytest.mark.parametrize("sampler", ["ddim", "dpm"])
 def test_the_shipped_model_talks_with_self_and_rests_while_listening(sampler: str) -> None:
     """Issue 13's must-show on the bundled dialogue: the jaw follows self's voice and shuts in self's
-    silences, the arms move at least twice as fast while self talks as while it only listens, the
-    head 1.9 times. Issue 13 asked twice for the head; the weights that learned recorded voices
-    (issue 32), with the body's guidance 4 on the head and 2 on the rest, give it 1.94 here (seeds 0
-    and 1: 1.94, 2.05; at 3 throughout 1.99, 2.11; at 2 throughout 1.83), 1.91 on the corpus's 7
-    espeak-ng test conversations and at least 2.4 on four real dialogues
-    (tests/eval/test_real_voices.py asserts 2 there). Speeds are pooled over three takes: the guide
-    poses are sampled, and one take in a few gestures through a listening turn. DPM-Solver++ in its
-    4 and 8 steps holds the same: head 1.99 (seed 1: 2.03), the mouth shut in 94-96 % of self's
-    silences (seed 1: 93-94 %)."""
+    silences, the arms and the head move at least twice as fast while self talks as while it only
+    listens. With the guide poses sampled at temperature 1.2 (``GUIDE_TEMPERATURE``) the head's
+    ratio is 2.35 here (seed 1: 2.21), and DPM-Solver++ in its 4 and 8 steps gives 2.25 (2.13); at
+    temperature 1 it was 1.94 / 2.05 (dpm 1.99 / 2.03), which the test then asked to be 1.9. Speeds
+    are pooled over three takes: the guide poses are sampled, and one take in a few gestures
+    through a listening turn. The mouth is shut in 93.5-94.4 % of self's silences in every take
+    (seeds 0 and 1, both samplers). On real voices (bench/bench_real_voices.py, the worst of four
+    one-minute dialogues) the head's ratio is 3.0 clean and 2.6 with bleed (2.48 and 2.61 at 1)."""
     audio = AudioSource(REPO / "samples" / "dialogue.wav").read_all()
     segments = load_segments(REPO / "samples" / "dialogue.json")
     takes = [
@@ -88,7 +87,7 @@ def test_the_shipped_model_talks_with_self_and_rests_while_listening(sampler: st
         pooled("head", "mean_angular_speed_self_speaking_deg_s"),
         pooled("head", "mean_angular_speed_listening_deg_s"),
     )
-    assert head[0] >= 1.9 * head[1], head
+    assert head[0] >= 2 * head[1], head
 
 
 def test_the_shipped_model_is_continuous_at_window_seams() -> None:

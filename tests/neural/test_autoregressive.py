@@ -51,3 +51,26 @@ def test_the_cache_keeps_the_band_and_the_loop_matches_a_full_rerun() -> None:
         logits = table[history[:, max(0, i - band + 1) : i + 1]].sum(axis=1)
         expected = top_p(logits, 0.9, np.array([r.random() for r in rngs]))
         np.testing.assert_array_equal(tokens[:, i], expected)
+
+
+def test_temperature_sharpens_or_flattens_the_draws() -> None:
+    """Logits divided by the temperature: near 0 the argmax only, above 1 the tail more often,
+    and at 1 the draws of no temperature at all."""
+    vocab = 4
+    logits = np.log(np.array([0.55, 0.25, 0.15, 0.05]))
+
+    def draws(temperature: float | None) -> np.ndarray:
+        def step(token, position, keys, values):
+            return np.repeat(logits[None], len(token), axis=0), keys, values
+
+        empty = np.zeros((1, 4000, 1, 0, 1), np.float32)
+        cache = KVCache(empty, empty, band=2, token=np.zeros((4000, 1), np.int64))
+        rngs = [np.random.default_rng(i) for i in range(4000)]
+        extra = {} if temperature is None else {"temperature": temperature}
+        return sample_tokens(step, cache, 1, 1.0, rngs, **extra)[:, 0]
+
+    np.testing.assert_array_equal(draws(1.0), draws(None))
+    assert set(draws(0.05).tolist()) == {0}
+    tail = {t: float(np.mean(draws(t) >= 2)) for t in (1.0, 2.0)}
+    assert abs(tail[1.0] - 0.2) < 0.03 and tail[2.0] > tail[1.0] + 0.05
+    assert np.bincount(draws(2.0), minlength=vocab)[3] > np.bincount(draws(1.0), minlength=vocab)[3]

