@@ -86,9 +86,9 @@ keep 0.89 of the corpus's spread on the upper body (median over its channels, te
 body diffusion is no narrower than its guides, the guide transformer is. At 1.2, on the test split
 (7 x 4, seeds 0-5), FD_g body is 7.42 against 7.94 (the takes' 5.11: 1.45x against 1.55x), though
 not at every seed (gains of 0.6 to 2.3 at three, losses of 0.1 to 0.5 at the others); at 1.5,
-7.47 at seed 0 (6.79 at 1.2, 7.70 at 1). The head
-moves more while talking: 2.35 / 2.21 times its listening speed on the bundled dialogue (seeds 0 /
-1; 1.94 / 2.05 at 1). The face is sampled before the guide and does not change."""
+7.47 at seed 0 (6.79 at 1.2, 7.70 at 1). The head moves more while talking: 2.35 / 2.21 times its
+listening speed on the bundled dialogue (seeds 0 / 1; 1.94 / 2.05 at 1). The face is sampled
+before the guide and does not change."""
 FACE = rep.GROUPS["face"]
 BODY = rep.GROUPS["body"]
 HEAD = rep.PARTS["head"]

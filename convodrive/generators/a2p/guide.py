@@ -54,7 +54,7 @@ class GuidePoses:
         speaker: np.ndarray,
         silence: np.ndarray,
         top_p: float,
-        temperature: float = 1.0,
+        temperature: float,
     ) -> None:
         self.audio_graph, self.step_graph, self.vq_decoder = (
             graphs[k] for k in ("guide_audio", "guide_step", "vq_decoder")
