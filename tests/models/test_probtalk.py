@@ -158,7 +158,7 @@ def test_the_pq_vae_error_is_l1_or_its_square() -> None:
 def test_the_refiner_error_is_l1_or_its_square() -> None:
     """``refiner_loss``: the paper's L1, or squared error, whose optimum is each channel's mean
     rather than its median, so a mouth shape held in a few frames of ten is not flattened away."""
-    from convodrive.training.recipes.probtalk import refiner_loss
+    from convodrive.training.recipes.probtalk_losses import refiner_loss
 
     x = _batch()
     x["mask"][..., 7] = 0
@@ -177,6 +177,83 @@ def test_the_refiner_error_is_l1_or_its_square() -> None:
         assert float(figures[f"coarse_{kind}"]) == pytest.approx(float(expected), rel=1e-5)
     with pytest.raises(ValueError, match="refiner_loss"):
         dataclasses.replace(TINY, refiner_loss="huber").check()
+
+
+def test_the_frechet_loss_is_fd_g_and_its_gradient_restores_a_shrunken_spread() -> None:
+    """``frechet_loss`` is the metric's own formula, also where two channels move as one (a blink's
+    lids: a zero eigenvalue), and descending it gives motion regressed towards its mean its spread back."""
+    from convodrive.eval.distribution import frechet_distance
+    from convodrive.models.common import frechet_loss
+
+    g = torch.Generator().manual_seed(0)
+    real = torch.randn(600, 6, generator=g, dtype=torch.float64) @ torch.randn(6, 6, generator=g, dtype=torch.float64)
+    real[:, 1] = real[:, 0]
+    made = (0.3 * real + 0.05 * torch.randn(600, 6, generator=g, dtype=torch.float64)).requires_grad_(True)
+    expected = frechet_distance(made.detach().numpy(), real.numpy())
+    assert float(frechet_loss(made, real)) == pytest.approx(expected, abs=2 * 6 * 1e-6**0.5)  # its eps's bias
+    optimizer = torch.optim.Adam([made], lr=0.05)
+    for _ in range(100):
+        optimizer.zero_grad()
+        frechet_loss(made, real).backward()
+        optimizer.step()
+    assert torch.isfinite(made).all()
+    assert frechet_distance(made.detach().numpy(), real.numpy()) < 0.1 * expected
+    assert float(made.detach().std(0).mean()) > 0.8 * float(real.std(0).mean())
+
+
+def test_the_refiner_fd_term_adds_the_weighted_distance_of_each_group_on_its_own() -> None:
+    """``refiner_fd`` adds its weight times ``group_frechet`` of each group it names, and each group's
+    distance looks at that group only: a change to the body leaves the face's as it was."""
+    from convodrive.training.recipes.probtalk_losses import group_frechet, refiner_loss
+
+    x = _batch()
+    known = torch.zeros(4, 48, 1)
+    known[:, :8] = 1.0
+    totals = {}
+    for weight, groups in ((0.0, ("face", "body")), (0.5, ("face", "body")), (0.5, ("face",))):
+        torch.manual_seed(0)
+        config = dataclasses.replace(TINY, refiner_noise=0.0, refiner_fd=weight, refiner_fd_groups=groups)
+        model = ProbTalk(config, DIM, BANDS, SPEAKERS, stage="refiner").eval()
+        with torch.no_grad():
+            totals[weight, groups], figures = refiner_loss(model, x, known, torch.Generator().manual_seed(0))
+    assert set(figures) == {"l1", "velocity", "coarse_l1", "face_fd"}
+    both = float(totals[0.5, ("face", "body")] - totals[0.0, ("face", "body")])
+    face = float(totals[0.5, ("face",)] - totals[0.0, ("face", "body")])
+    assert face == pytest.approx(0.5 * float(figures["face_fd"]), rel=1e-4)
+    assert both > face > 0
+    made = x["motion"] + 0.1 * torch.randn(x["motion"].shape, generator=torch.Generator().manual_seed(1))
+    moved = made.clone()
+    moved[..., rep.GROUPS["body"]] += 1.0
+    for group, changes in (("face", False), ("body", True)):
+        before = float(group_frechet(made, x["motion"], x["mask"], known, group))
+        after = float(group_frechet(moved, x["motion"], x["mask"], known, group))
+        assert before > 0
+        assert (after > before + 0.5) if changes else after == pytest.approx(before, rel=1e-6)
+    with pytest.raises(ValueError, match="refiner_fd_groups"):
+        dataclasses.replace(TINY, refiner_fd_groups=("hands",)).check()
+
+
+def test_by_voice_the_distance_sees_a_mouth_that_moves_in_silence_instead_of_in_speech() -> None:
+    """Pooled over all frames, a face that moves while self is silent and rests while self speaks has
+    the true face's distribution; ``by_voice`` compares speech with speech and silence with silence."""
+    from convodrive.training.recipes.probtalk_losses import group_frechet
+
+    g = torch.Generator().manual_seed(0)
+    frames, block = 96, 16
+    speaking = (torch.arange(frames) // block) % 2 == 0
+    face = rep.GROUPS["face"]
+    real = torch.zeros(2, frames, DIM)
+    real[..., rep.PARTS["vad"].start] = torch.where(speaking, 1.0, -1.0)
+    moving = torch.randn(2, frames // 2, face.stop - face.start, generator=g).cumsum(dim=1) * 0.3
+    real[:, speaking, face] = moving
+    real[:, ~speaking, face] = -1.0
+    swapped = real.clone()
+    swapped[:, ~speaking, face], swapped[:, speaking, face] = real[:, speaking, face], real[:, ~speaking, face]
+    mask, known = torch.ones(2, 1, DIM), torch.zeros(2, frames, 1)
+    pooled = float(group_frechet(swapped, real, mask, known, "face"))
+    apart = float(group_frechet(swapped, real, mask, known, "face", by_voice=True))
+    same = float(group_frechet(real, real, mask, known, "face", by_voice=True))  # frechet_loss's eps bias
+    assert apart > 10 * max(pooled, same)
 
 
 def test_the_acceleration_term_adds_the_weighted_second_difference_error() -> None:
@@ -203,7 +280,7 @@ def test_eyelid_part_weighs_the_two_lids_as_much_as_a_whole_part() -> None:
     import dataclasses
 
     from convodrive.motion.channels import ARKIT_NAMES
-    from convodrive.training.recipes.probtalk import EYELIDS, part_weights
+    from convodrive.training.recipes.probtalk_losses import EYELIDS, part_weights
 
     plain = part_weights(dataclasses.replace(TINY, balance_parts=True))
     weight = part_weights(dataclasses.replace(TINY, balance_parts=True, eyelid_part=True))
@@ -222,7 +299,7 @@ def test_spine_part_weighs_the_three_spine_joints_as_much_as_a_whole_part() -> N
     the upper body, with the eyelids a part too when both are on."""
     import dataclasses
 
-    from convodrive.training.recipes.probtalk import SPINE_CHANNELS, part_weights
+    from convodrive.training.recipes.probtalk_losses import SPINE_CHANNELS, part_weights
 
     assert SPINE_CHANNELS == 18
     weight = part_weights(dataclasses.replace(TINY, balance_parts=True, spine_part=True, eyelid_part=True))
@@ -245,7 +322,7 @@ def test_balanced_parts_weigh_a_small_part_as_much_as_a_large_one() -> None:
     its scale (a mean weight of 1)."""
     import dataclasses
 
-    from convodrive.training.recipes.probtalk import part_weights
+    from convodrive.training.recipes.probtalk_losses import part_weights
 
     assert part_weights(TINY) is None
     balanced = dataclasses.replace(TINY, balance_parts=True)
@@ -314,7 +391,7 @@ def test_the_vq_stage_reports_the_fd_g_its_reconstruction_allows() -> None:
     """The vq stage's validation scores its reconstruction as ``eval compare`` scores generated
     motion: 0 when it gives the motion back, the motion's own spread when it gives a constant, and
     channels a corpus lacks are left out."""
-    from convodrive.training.recipes.probtalk import reconstruction_fd
+    from convodrive.training.recipes.probtalk_losses import reconstruction_fd
 
     batch = _batch(8)
     face = rep.GROUPS["face"]

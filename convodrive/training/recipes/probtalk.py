@@ -18,20 +18,15 @@ logits, run once per MaskGIT pass); then ``refiner``.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
-from convodrive.eval.distribution import fd_g
-from convodrive.models.common import MASKED_ERRORS
 from convodrive.models.probtalk import STAGES, ProbTalk
 from convodrive.models.probtalk_config import ProbTalkConfig
 from convodrive.motion import representation as rep
-from convodrive.motion.channels import ARKIT_NAMES
 from convodrive.plumbing.errors import UserError
 from convodrive.training.config import Preset
 from convodrive.training.recipe import (
@@ -42,6 +37,14 @@ from convodrive.training.recipe import (
     TrainingData,
     model_device,
     to_device,
+)
+from convodrive.training.recipes.probtalk_losses import (
+    context_masks,
+    crop,
+    part_weights,
+    predictor_loss,
+    reconstruction_fd,
+    refiner_loss,
 )
 from convodrive.training.staged import StagedRecipe
 from convodrive.training.windows import window_data
@@ -240,134 +243,3 @@ class ProbTalkRecipe(StagedRecipe):
             "Use: `convodrive drive AUDIO --generator probtalk -G model=THIS_FOLDER` (options: iterations, temperature, "
             "speaker, window, context, dyadic, mode, refine)."
         )
-
-
-# ----------------------------------------------------------------------------------- the stages
-EYELIDS = ("eyeBlinkLeft", "eyeBlinkRight")
-"""The ARKit channels ``eyelid_part`` weighs as a part of their own."""
-SPINE_CHANNELS = rep.SIXD * sum(joint.startswith("spine") for joint in rep.PART_JOINTS["upper"])
-"""spine1..3's 6D blocks, the first channels of the upper body: ``spine_part`` weighs them as a part."""
-
-
-def part_weights(config: ProbTalkConfig, device: torch.device | str = "cpu") -> torch.Tensor | None:
-    """(D,) error weights under which each motion part of the layout (jaw, eyes, ARKit, head, upper
-    body, hands; the eyelids with ``eyelid_part``, the spine with ``spine_part``) counts alike, whatever its number of
-    channels; voice activity keeps one channel's weight. The mean weight is 1, so the loss keeps its
-    scale. None when ``balance_parts`` is off. On ``device``, the batch's: a CPU tensor times a CUDA
-    mask fails."""
-    if not config.balance_parts:
-        return None
-    parts = [np.arange(part.start, part.stop) for name, part in rep.PARTS.items() if name != "vad"]
-    own = []
-    if config.eyelid_part:
-        own.append(rep.PARTS["arkit"].start + np.array([ARKIT_NAMES.index(n) for n in EYELIDS]))
-    if config.spine_part:
-        own.append(rep.PARTS["upper"].start + np.arange(SPINE_CHANNELS))
-    for columns in own:
-        parts = [np.setdiff1d(p, columns) for p in parts] + [columns]
-    weight = np.ones(rep.FEATURE_DIM)
-    channels = sum(len(p) for p in parts)
-    for columns in parts:
-        weight[columns] = channels / len(parts) / len(columns)
-    return torch.from_numpy(weight).float().to(device)
-
-
-def reconstruction_fd(reconstruct: Callable[[torch.Tensor], torch.Tensor], batch: Batch) -> dict[str, float]:
-    """FD_g of face and body for a batch's motion passed through ``reconstruct`` (the PQ-VAE's
-    encode and decode), on the channels every window has.
-
-    ``eval compare`` scores generated motion by these figures, and no predictor can do better
-    than the PQ-VAE's own reconstruction: the vq stage already shows the best the later ones can reach."""
-    motion, mask = batch["motion"], batch["mask"]
-    recon = reconstruct(motion * mask)
-    kept = mask.amin(dim=0).flatten().bool().cpu()
-    out = {}
-    for part in ("face", "body"):
-        cols = torch.arange(rep.GROUPS[part].start, rep.GROUPS[part].stop)
-        cols = cols[kept[cols]]
-        if len(cols):
-            real = motion[..., cols].flatten(0, 1).double().cpu().numpy()
-            made = recon[..., cols].flatten(0, 1).double().cpu().numpy()
-            out[f"recon_fd_g_{part}"] = fd_g([made], [real])
-    return out
-
-
-def crop(batch: Batch, config: ProbTalkConfig, generator: torch.Generator) -> Batch:
-    """The batch cut to one random length (half the time the whole window), a multiple of a token."""
-    frames = batch["motion"].shape[1]
-    f = config.frames_per_token
-    if float(torch.rand((), generator=generator)) < 0.5 or frames <= config.min_window:
-        return batch
-    lengths = list(range(config.min_window, frames + 1, f))
-    length = lengths[int(torch.randint(len(lengths), (), generator=generator))]
-    start = int(torch.randint(frames - length + 1, (), generator=generator))
-    return {k: v[:, start : start + length] if k in ("motion", "audio") else v for k, v in batch.items()}
-
-
-def context_masks(batch: int, frames: int, config: ProbTalkConfig, generator: torch.Generator) -> torch.Tensor:
-    """(B, frames, 1) known-frame masks: a quarter none, a quarter a block of ``context_frames`` at a
-    random place (the reference's), half a prefix (the previous window's frames: ``context_frames``
-    or a random length)."""
-    kind = torch.rand(batch, generator=generator)
-    t = torch.arange(frames)
-    masks = torch.zeros(batch, frames, 1)
-    block = max(1, min(config.context_frames, frames - 1))
-    for b in range(batch):
-        if kind[b] < 0.25:
-            continue
-        if kind[b] < 0.5:
-            start = int(torch.randint(frames - block + 1, (), generator=generator))
-            masks[b, :, 0] = ((t >= start) & (t < start + block)).float()
-        else:
-            upper = max(2, frames - config.frames_per_token)
-            random_length = int(torch.randint(1, upper, (), generator=generator))
-            length = block if kind[b] < 0.75 else random_length
-            masks[b, :length, 0] = 1.0
-    return masks
-
-
-def predictor_loss(
-    model: ProbTalk, batch: Batch, known: torch.Tensor, generator: torch.Generator
-) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """MaskGIT's objective: mask a cosine-distributed fraction of each window's codes, predict them."""
-    assert model.predictor is not None
-    config = model.config
-    motion = batch["motion"] * batch["mask"]
-    with torch.no_grad():
-        target = model.vq.encode(motion).flatten(1)  # (B, N)
-    b, n = target.shape
-    ratio = torch.cos(torch.rand(b, generator=generator) * (math.pi / 2))
-    count = torch.ceil(ratio * n).clamp(min=1).long().to(target.device)
-    rank = torch.rand(b, n, generator=generator).argsort(dim=1).argsort(dim=1).to(target.device)
-    masked = rank < count[:, None]
-    tokens = torch.where(masked, torch.full_like(target, config.mask_id), target)
-    audio = model.audio_norm(batch["audio"])
-    logits = model.predictor(tokens, audio, motion, known, batch["speaker"])
-    loss = F.cross_entropy(logits[masked], target[masked])
-    accuracy = (logits[masked].argmax(-1) == target[masked]).float().mean()
-    return loss, {"accuracy": accuracy.detach()}
-
-
-def refiner_loss(
-    model: ProbTalk, batch: Batch, known: torch.Tensor, generator: torch.Generator
-) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """Error (``refiner_loss``: L1, the reference's, or squared) of the refined unknown frames against
-    the truth, and of velocities everywhere (so the seam with the known frames counts), refining
-    noisy VQ reconstructions (the reference's recipe)."""
-    assert model.refiner is not None
-    config = model.config
-    motion, mask = batch["motion"], batch["mask"]
-    with torch.no_grad():
-        coarse = model.vq.decode(model.vq.encode(motion * mask))
-        coarse = coarse + config.refiner_noise * torch.randn(coarse.shape, generator=generator).to(coarse.device)
-    combined = known * motion + (1 - known) * coarse
-    refined = model.refiner(combined, model.audio_norm(batch["audio"]), known, batch["speaker"])
-    weight = part_weights(config, mask.device)
-    counted = mask if weight is None else mask * weight
-    free = counted * (1 - known)
-    name = config.refiner_loss
-    error = MASKED_ERRORS[name]
-    rec = error(refined, motion, free)
-    vel = error(refined.diff(dim=1), motion.diff(dim=1), counted)
-    coarse = error(combined, motion, free)
-    return rec + config.velocity_weight * vel, {name: rec.detach(), "velocity": vel.detach(), f"coarse_{name}": coarse}
