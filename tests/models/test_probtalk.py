@@ -256,6 +256,39 @@ def test_by_voice_the_distance_sees_a_mouth_that_moves_in_silence_instead_of_in_
     assert apart > 10 * max(pooled, same)
 
 
+def test_the_shut_mouth_error_counts_only_a_jaw_opened_past_the_truth_in_free_silent_frames() -> None:
+    """``refiner_shut``: a jaw ajar where self is silent costs its excess; the same opening while self
+    speaks, in known frames, or a jaw shut tighter than the truth, costs nothing."""
+    from convodrive.training.recipes.probtalk_losses import JAW_OPEN, refiner_loss, shut_mouth_error
+
+    frames = 40
+    real = torch.zeros(2, frames, DIM)
+    speaking = torch.arange(frames) >= 20
+    real[..., rep.PARTS["vad"].start] = torch.where(speaking, 1.0, -1.0)
+    mask, known = torch.ones(2, 1, DIM), torch.zeros(2, frames, 1)
+    known[:, :5] = 1.0
+    made = real.clone()
+    made[:, :5, JAW_OPEN] = 3.0  # known frames: copied from the truth at run time, not the refiner's
+    made[:, 20:, JAW_OPEN] = 3.0  # open while self speaks
+    made[:, 5:10, JAW_OPEN] = -2.0  # shut tighter than the truth
+    assert float(shut_mouth_error(made, real, mask, known)) == 0.0
+    made[:, 10:20, JAW_OPEN] = 0.6  # ajar in half of the 15 free silent frames
+    assert float(shut_mouth_error(made, real, mask, known)) == pytest.approx(0.6 * 10 / 15)
+    no_jaw = mask.clone()
+    no_jaw[..., JAW_OPEN] = 0.0
+    assert float(shut_mouth_error(made, real, no_jaw, known)) == 0.0
+
+    x, context = _batch(), torch.zeros(4, 48, 1)
+    totals = {}
+    for weight in (0.0, 2.0):
+        torch.manual_seed(0)
+        model = ProbTalk(dataclasses.replace(TINY, refiner_noise=0.0, refiner_shut=weight), DIM, BANDS, SPEAKERS).eval()
+        with torch.no_grad():
+            totals[weight], figures = refiner_loss(model, x, context, torch.Generator().manual_seed(0))
+    assert float(figures["shut"]) > 0
+    assert float(totals[2.0] - totals[0.0]) == pytest.approx(2 * float(figures["shut"]), rel=1e-4)
+
+
 def test_the_acceleration_term_adds_the_weighted_second_difference_error() -> None:
     """``acceleration_weight``: the PQ-VAE's loss gains the weighted error of the second difference,
     which penalises frame-to-frame shiver that the velocity term lets through; 0 leaves it out."""

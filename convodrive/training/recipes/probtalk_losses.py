@@ -130,7 +130,8 @@ def refiner_loss(
     """Error (``refiner_loss``: L1, the reference's, or squared) of the refined unknown frames against
     the truth, and of velocities everywhere (so the seam with the known frames counts), refining
     noisy VQ reconstructions (the reference's recipe); with ``refiner_fd``, plus the distance in distribution of
-    each of ``refiner_fd_groups`` (``group_frechet``)."""
+    each of ``refiner_fd_groups`` (``group_frechet``); with ``refiner_shut``, plus the jaw's
+    opening past the truth in self's silence (``shut_mouth_error``)."""
     assert model.refiner is not None
     config = model.config
     motion, mask = batch["motion"], batch["mask"]
@@ -155,7 +156,27 @@ def refiner_loss(
         distance = group_frechet(refined, motion, mask, known, group, config.refiner_fd_by_voice)
         loss = loss + config.refiner_fd * distance
         figures[f"{group}_fd"] = distance.detach()
+    if config.refiner_shut > 0:
+        ajar = shut_mouth_error(refined, motion, mask, known)
+        loss = loss + config.refiner_shut * ajar
+        figures["shut"] = ajar.detach()
     return loss, figures
+
+
+JAW_OPEN = rep.PARTS["arkit"].start + ARKIT_NAMES.index("jawOpen")
+"""The feature column of ARKit's ``jawOpen``, the channel ``eval`` reads the mouth's opening from."""
+
+
+def shut_mouth_error(
+    refined: torch.Tensor, motion: torch.Tensor, mask: torch.Tensor, known: torch.Tensor
+) -> torch.Tensor:
+    """Mean of how far the refined ``jawOpen`` rises above the true one over the free frames where
+    self is silent (voice activity below its mean, 0 normalised), in normalised units; 0 when there
+    are none or the windows lack the channel. One-sided: a jaw shut tighter than the truth in
+    silence is the squared or L1 error's business, not this term's."""
+    silent = (motion[..., rep.PARTS["vad"].start] <= 0) & (known[..., 0] == 0) & (mask[..., JAW_OPEN] > 0)
+    excess = (refined[..., JAW_OPEN] - motion[..., JAW_OPEN]).clamp(min=0)
+    return (excess * silent).sum() / silent.sum().clamp(min=1)
 
 
 def group_frechet(
