@@ -110,7 +110,10 @@ class ProbTalkConfig:
     on an AMD EPYC), test split seed 0, fp32, and real voices worst of 4, int8: without it FD_g face
     1.33, body 10.97, real voices with bleed shut where only the partner speaks 0.959, jaw r 0.699;
     at 1.0: 1.24, 9.28, 0.991, 0.73 (all four real-voice targets met, clean and with bleed); at 4.0:
-    1.48, 9.61, 0.988. The same vq and predictor with the preset's refiner: 2.52, 10.75, 0.954."""
+    1.48, 9.61, 0.988. The same vq and predictor with the preset's refiner: 2.52, 10.75, 0.954.
+    A second training seed (1) met the real-voice targets without it too (0.989; at 1.0: 0.987), FD_g
+    face 1.57 -> 1.34, body 8.77 -> 9.68; at both seeds it kept the corpus's mouth shut where self is
+    silent more often (0.967 -> 0.983, 0.963 -> 0.981)."""
     speaker_dim: int = 512
     """Size of the speaker embedding that modulates every sub-layer."""
     dropout: float = 0.1
