@@ -101,7 +101,8 @@ class ProbTalkConfig:
     refiner_fd_by_voice: bool = False
     """``refiner_fd`` apart over the frames where self speaks and where self is silent (``group_frechet``).
     At 0.1 and 3000 steps: FD_g face 1.04 (seed 0), the mouth shut while only the partner speaks on
-    0.963 of the worst real dialogue's frames (pooled: 0.922), but FD_g body 8.29 (seed 0)."""
+    0.963 of the worst real dialogue's frames (with the term over all frames: 0.922), but FD_g body
+    8.29 (seed 0)."""
     refiner_shut: float = 0.0
     """Weight of a one-sided error on ``jawOpen`` in the free frames where self is silent: how far the
     refined jaw opens past the true one (``shut_mouth_error``). Spread learned from ``refiner_fd``

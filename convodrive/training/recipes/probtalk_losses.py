@@ -163,6 +163,12 @@ def refiner_loss(
     return loss, figures
 
 
+def self_speaks(motion: torch.Tensor) -> torch.Tensor:
+    """(B, T) frames where self speaks: normalised voice activity above 0, its mean. The one
+    split of speech from silence that ``group_frechet`` and ``shut_mouth_error`` share."""
+    return motion[..., rep.PARTS["vad"].start] > 0
+
+
 JAW_OPEN = rep.PARTS["arkit"].start + ARKIT_NAMES.index("jawOpen")
 """The feature column of ARKit's ``jawOpen``, the channel ``eval`` reads the mouth's opening from."""
 
@@ -174,7 +180,7 @@ def shut_mouth_error(
     self is silent (voice activity below its mean, 0 normalised), in normalised units; 0 when there
     are none or the windows lack the channel. One-sided: a jaw shut tighter than the truth in
     silence is the squared or L1 error's business, not this term's."""
-    silent = (motion[..., rep.PARTS["vad"].start] <= 0) & (known[..., 0] == 0) & (mask[..., JAW_OPEN] > 0)
+    silent = ~self_speaks(motion) & (known[..., 0] == 0) & (mask[..., JAW_OPEN] > 0)
     excess = (refined[..., JAW_OPEN] - motion[..., JAW_OPEN]).clamp(min=0)
     return (excess * silent).sum() / silent.sum().clamp(min=1)
 
@@ -204,7 +210,7 @@ def group_frechet(
     free = known[..., 0] == 0
     subsets = [free]
     if by_voice:
-        speaking = motion[..., rep.PARTS["vad"].start] > 0
+        speaking = self_speaks(motion)
         subsets = [free & speaking, free & ~speaking]
     distance = refined.new_zeros(())
     for rows in subsets:
