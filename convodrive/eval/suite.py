@@ -43,6 +43,11 @@ COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("head speak/listen", "", "head speed while speaking over while only listening"),
     ("blinks/min listening", "", "blink rate while only the partner speaks"),
 )
+SCORED_PARTS: tuple[str, ...] = ("head", "upper", "hands", "jaw", "eyes", "arkit")
+"""The parts of the feature layout (``representation.PARTS``) whose FD_g ``score`` also gives,
+each over its own channels: which part a group's distance comes from. They do not add up to the
+group's figure (that one also counts how the parts move together)."""
+PART_COLUMNS: tuple[str, ...] = tuple(f"FD_g {part}" for part in SCORED_PARTS)
 
 
 @dataclasses.dataclass
@@ -72,7 +77,7 @@ def _mean(values: list[float | None]) -> float | None:
 
 
 def score(cases: list[Case], stats: FeatureStats, embedder: FGDEmbedder | None, seed: int = 0) -> dict[str, Any]:
-    """The figures of ``COLUMNS`` for one method over ``cases`` (None where undefined)."""
+    """The figures of ``COLUMNS`` and ``PART_COLUMNS`` for one method over ``cases`` (None where undefined)."""
     rng = np.random.default_rng(seed)
     mask = np.logical_and.reduce([c.mask for c in cases])
     cols = _slices(mask)
@@ -84,6 +89,11 @@ def score(cases: list[Case], stats: FeatureStats, embedder: FGDEmbedder | None, 
         r = [x[:, cols[part]] for x in ref]
         out[f"FD_g {part}"] = dist.fd_g(g, r)
         out[f"FD_k {part}"] = dist.fd_k(g, r)
+    for part in SCORED_PARTS:
+        kept = np.arange(rep.PARTS[part].start, rep.PARTS[part].stop)
+        kept = kept[mask[kept]]
+        if len(kept):
+            out[f"FD_g {part}"] = dist.fd_g([x[:, kept] for seqs in gen for x in seqs], [x[:, kept] for x in ref])
     hol = cols["holistic"]
     out["Div_g"] = _mean([dist.div_g(x[:, hol], rng) for seqs in gen for x in seqs])
     out["Div_k"] = _mean([dist.div_k(x[:, hol]) for seqs in gen for x in seqs])
@@ -117,4 +127,5 @@ def score(cases: list[Case], stats: FeatureStats, embedder: FGDEmbedder | None, 
             "blinks/min listening": _mean(blinks),
         }
     )
-    return {name: (None if out.get(name) is None else round(float(out[name]), 4)) for name, _, _ in COLUMNS}
+    names = [name for name, _, _ in COLUMNS] + list(PART_COLUMNS)
+    return {name: (None if out.get(name) is None else round(float(out[name]), 4)) for name in names}

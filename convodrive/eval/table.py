@@ -11,11 +11,11 @@ import json
 from pathlib import Path
 from typing import Any
 
-from convodrive.eval.suite import COLUMNS
+from convodrive.eval.suite import COLUMNS, PART_COLUMNS
 from convodrive.plumbing.atomic import atomic_path, write_text_atomic
 
 FLOOR = "ground-truth"
-FLOOR_COLUMNS = tuple(n for n, _, _ in COLUMNS if n.startswith(("FD_", "FGD")))
+FLOOR_COLUMNS = tuple(n for n, _, _ in COLUMNS if n.startswith(("FD_", "FGD"))) + PART_COLUMNS
 """The distances given as a ratio to the floor's."""
 PLOTTED = ("FD_g body", "FD_g face", "FGD holistic", "FD_k body", "Div_sample", "BC", "lip r", "mouth shut")
 
@@ -42,19 +42,34 @@ def _table(columns: list[str], rows: dict[str, dict[str, Any]]) -> list[str]:
     return [header, rule, *(f"| {m} | " + " | ".join(_cell(v) for v in fig.values()) + " |" for m, fig in rows.items())]
 
 
+def _parts_section(results: dict[str, dict[str, Any]], ratios: dict[str, dict[str, float | None]]) -> list[str]:
+    """FD_g by part, and over the floor's when it was scored; nothing when no method has them."""
+    parts = {m: {n: fig.get(n) for n in PART_COLUMNS} for m, fig in results.items()}
+    if all(v is None for fig in parts.values() for v in fig.values()):
+        return []
+    lines = ["## FD_g by part (each part's channels alone; they do not add up to the group's)", ""]
+    lines += [*_table([f"{n} ↓" for n in PART_COLUMNS], parts), ""]
+    if ratios:
+        lines += [f"As a ratio to the {FLOOR} takes':", ""]
+        lines += [*_table(list(PART_COLUMNS), {m: {n: r[n] for n in PART_COLUMNS} for m, r in ratios.items()}), ""]
+    return lines
+
+
 def markdown(results: dict[str, dict[str, Any]], title: str, spread: dict[str, dict[str, Any]] | None = None) -> str:
     """``spread``: each method's standard deviation of each figure over seeds, when several ran."""
     arrows = {"low": " ↓", "high": " ↑", "": ""}
     figures = {m: {n: fig.get(n) for n, _, _ in COLUMNS} for m, fig in results.items()}
     lines = [f"# {title}", "", *_table([f"{n}{arrows[b]}" for n, b, _ in COLUMNS], figures), ""]
     ratios = floor_ratios(results)
+    main = [n for n in FLOOR_COLUMNS if n not in PART_COLUMNS]
     if ratios:
         lines += [f"## Distances as a ratio to the {FLOOR} takes' (1 is the floor the data sets)", ""]
-        lines += [*_table([f"{n} ↓" for n in FLOOR_COLUMNS], ratios), ""]
+        lines += [*_table([f"{n} ↓" for n in main], {m: {n: r[n] for n in main} for m, r in ratios.items()}), ""]
+    lines += _parts_section(results, ratios)
     if spread:
         lines += ["## Standard deviation over the seeds (each seed: the same conversations, new samples)", ""]
         lines += [
-            *_table(list(FLOOR_COLUMNS), {m: {n: sd.get(n) for n in FLOOR_COLUMNS} for m, sd in spread.items()}),
+            *_table(main, {m: {n: sd.get(n) for n in main} for m, sd in spread.items()}),
             "",
         ]
     lines += [f"- **{n}**{arrows[b]}: {what}" for n, b, what in COLUMNS]

@@ -53,6 +53,7 @@ def short_dialogue(tmp_path: Path) -> Path:
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("cpu_hogs")  # its servo head runs on the wall clock: not beside the DDP test
 def test_demo_drives_every_body_and_reports(short_dialogue: Path, tmp_path: Path) -> None:
     out_dir = tmp_path / "demo"
     out = run_cli("demo", "--audio", str(short_dialogue), "--out", str(out_dir), timeout=600)

@@ -46,6 +46,7 @@ def test_compare_writes_the_table_json_and_plot(tiny_corpus: Path, fgd_model: Pa
     assert data["results"]["procedural"]["Div_sample"] > 0  # its takes differ by seed
     table = (tmp_path / "cmp" / "compare.md").read_text()
     assert "| knn |" in table and "FD_g body ↓" in table
+    assert "## FD_g by part" in table and all(data["results"][m]["FD_g hands"] is not None for m in data["results"])
     png = (tmp_path / "cmp" / "compare.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
 

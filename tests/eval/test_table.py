@@ -34,3 +34,11 @@ def test_the_table_shows_the_ratios_only_when_the_floor_was_scored() -> None:
     assert "| knn | 1.2 | 2 |" in section and "| a2p | 2 | — |" in section
     without = {m: f for m, f in RESULTS.items() if m != "ground-truth"}
     assert "ratio to the" not in markdown(without, "t")
+
+
+def test_the_parts_section_appears_with_part_figures_and_their_ratios() -> None:
+    assert "by part" not in markdown(RESULTS, "t")
+    parts = {m: {**f, "FD_g hands": h} for (m, f), h in zip(RESULTS.items(), (2.0, 3.0, 8.0))}
+    table = markdown(parts, "t").split("## FD_g by part")[1]
+    values, ratios = table.split("As a ratio to the ground-truth takes'")
+    assert "| a2p | — | — | 8 |" in values and "| a2p | — | — | 4 |" in ratios

@@ -31,6 +31,7 @@ def _max_diff(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> float:
     return max(float((a[k] - b[k]).abs().max()) for k in a)
 
 
+@pytest.mark.xdist_group("cpu_hogs")  # two trainers on two cores: not beside the demo's real-time servo head
 def test_two_ddp_processes_train_the_same_weights_as_one(tiny_corpus: Path, tmp_path: Path) -> None:
     common = ["fgd", "--corpus", str(tiny_corpus), *TINY, "--steps", "6", "--batch-size", "8"]
     one = subprocess.run(
