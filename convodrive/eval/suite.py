@@ -62,13 +62,15 @@ class Case:
 
 
 def _slices(mask: np.ndarray) -> dict[str, np.ndarray]:
-    face = np.arange(rep.GROUPS["face"].start, rep.GROUPS["face"].stop)
-    body = np.arange(rep.GROUPS["body"].start, rep.GROUPS["body"].stop)
-    return {
-        "face": face[mask[face]],
-        "body": body[mask[body]],
-        "holistic": np.concatenate([face[mask[face]], body[mask[body]]]),
-    }
+    """The columns ``mask`` keeps of each group, of face and body together, and of each of ``SCORED_PARTS``."""
+
+    def kept(span: slice) -> np.ndarray:
+        columns = np.arange(span.start, span.stop)
+        return columns[mask[columns]]
+
+    out = {group: kept(rep.GROUPS[group]) for group in ("face", "body")}
+    out["holistic"] = np.concatenate([out["face"], out["body"]])
+    return {**out, **{part: kept(rep.PARTS[part]) for part in SCORED_PARTS}}
 
 
 def _mean(values: list[float | None]) -> float | None:
@@ -90,10 +92,10 @@ def score(cases: list[Case], stats: FeatureStats, embedder: FGDEmbedder | None, 
         out[f"FD_g {part}"] = dist.fd_g(g, r)
         out[f"FD_k {part}"] = dist.fd_k(g, r)
     for part in SCORED_PARTS:
-        kept = np.arange(rep.PARTS[part].start, rep.PARTS[part].stop)
-        kept = kept[mask[kept]]
-        if len(kept):
-            out[f"FD_g {part}"] = dist.fd_g([x[:, kept] for seqs in gen for x in seqs], [x[:, kept] for x in ref])
+        if len(cols[part]):
+            out[f"FD_g {part}"] = dist.fd_g(
+                [x[:, cols[part]] for seqs in gen for x in seqs], [x[:, cols[part]] for x in ref]
+            )
     hol = cols["holistic"]
     out["Div_g"] = _mean([dist.div_g(x[:, hol], rng) for seqs in gen for x in seqs])
     out["Div_k"] = _mean([dist.div_k(x[:, hol]) for seqs in gen for x in seqs])

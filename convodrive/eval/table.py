@@ -15,7 +15,9 @@ from convodrive.eval.suite import COLUMNS, PART_COLUMNS
 from convodrive.plumbing.atomic import atomic_path, write_text_atomic
 
 FLOOR = "ground-truth"
-FLOOR_COLUMNS = tuple(n for n, _, _ in COLUMNS if n.startswith(("FD_", "FGD"))) + PART_COLUMNS
+GROUP_DISTANCES = tuple(n for n, _, _ in COLUMNS if n.startswith(("FD_", "FGD")))
+"""The distances of the main table, given with their ratio and spread in tables of their own."""
+FLOOR_COLUMNS = GROUP_DISTANCES + PART_COLUMNS
 """The distances given as a ratio to the floor's."""
 PLOTTED = ("FD_g body", "FD_g face", "FGD holistic", "FD_k body", "Div_sample", "BC", "lip r", "mouth shut")
 
@@ -61,15 +63,15 @@ def markdown(results: dict[str, dict[str, Any]], title: str, spread: dict[str, d
     figures = {m: {n: fig.get(n) for n, _, _ in COLUMNS} for m, fig in results.items()}
     lines = [f"# {title}", "", *_table([f"{n}{arrows[b]}" for n, b, _ in COLUMNS], figures), ""]
     ratios = floor_ratios(results)
-    main = [n for n in FLOOR_COLUMNS if n not in PART_COLUMNS]
     if ratios:
         lines += [f"## Distances as a ratio to the {FLOOR} takes' (1 is the floor the data sets)", ""]
-        lines += [*_table([f"{n} ↓" for n in main], {m: {n: r[n] for n in main} for m, r in ratios.items()}), ""]
+        group_ratios = {m: {n: r[n] for n in GROUP_DISTANCES} for m, r in ratios.items()}
+        lines += [*_table([f"{n} ↓" for n in GROUP_DISTANCES], group_ratios), ""]
     lines += _parts_section(results, ratios)
     if spread:
         lines += ["## Standard deviation over the seeds (each seed: the same conversations, new samples)", ""]
         lines += [
-            *_table(main, {m: {n: sd.get(n) for n in main} for m, sd in spread.items()}),
+            *_table(list(GROUP_DISTANCES), {m: {n: sd.get(n) for n in GROUP_DISTANCES} for m, sd in spread.items()}),
             "",
         ]
     lines += [f"- **{n}**{arrows[b]}: {what}" for n, b, what in COLUMNS]
