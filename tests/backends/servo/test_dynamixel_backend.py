@@ -214,8 +214,10 @@ def test_each_fault_degrades_completes_and_ends_torque_off(
         assert any(e["event"] == "port_recovered" for e in report["events"])
 
 
-def test_port_gone_for_good_still_completes() -> None:
-    with start_emulated_head() as emu:
+def test_port_gone_for_good_still_completes(tmp_path: Path) -> None:
+    # Under a link of its own: a bare /dev/pts/N freed by the unplug can be handed to another
+    # test's emulator at once, and the backend's reconnect would then find a head there.
+    with start_emulated_head(link=str(tmp_path / "ttyDXL")) as emu:
         backend = DynamixelBackend(options(emu.port, ease_s=0.1))
         backend.open(SPEC, session())
         drive(backend, trajectory(6), lambda i: emu.unplug() if i == 2 else None)

@@ -105,8 +105,9 @@ def test_backend_follows_calibration_and_ends_off() -> None:
     assert report["torque_off"] and final == [0] * 12
 
 
-def test_backend_survives_unplug_and_drops() -> None:
-    with MaestroEmulator(12, link=None) as emu:
+def test_backend_survives_unplug_and_drops(tmp_path: Path) -> None:
+    # A link of its own, so the reconnect cannot find another test's pty under a reused /dev/pts/N.
+    with MaestroEmulator(12, link=str(tmp_path / "ttyACM0")) as emu:
         backend = _backend(emu.port, ease_s=0.1)
         for i in range(10):
             if i == 3:
