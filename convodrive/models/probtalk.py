@@ -107,10 +107,16 @@ class ProbTalk(nn.Module):
         self.frozen_names: tuple[str, ...] = STAGES[: STAGES.index(stage)]
         for name in self.frozen_names:
             getattr(self, name).requires_grad_(False)
-        self.vq.quantizer.updating = stage == "vq"
+        self.decoder_frozen = stage == "vq" and bool(config.vq_decoder_from)
+        """The vq stage fits an encoder to a given decoder and codebooks (``vq_decoder_from``)."""
+        if self.decoder_frozen:
+            self.vq.decoder.requires_grad_(False)
+        self.vq.quantizer.updating = stage == "vq" and not self.decoder_frozen
 
     def train(self, mode: bool = True) -> ProbTalk:
         super().train(mode)
         for name in self.frozen_names:
             getattr(self, name).eval()
+        if self.decoder_frozen:
+            self.vq.decoder.eval()
         return self

@@ -41,6 +41,10 @@ class ProbTalkConfig:
     times as much as the first does."""
     vq_loss: str = "l1"
     """Reconstruction and velocity error of the PQ-VAE: ``l1`` (the paper's) or ``l2`` (squared)."""
+    vq_decoder_from: str = ""
+    """A probtalk model folder whose PQ-VAE decoder and codebooks the vq stage takes, frozen, fitting
+    only a new encoder to them (``probtalk_decoder``): the refiner of shipped weights whose torch
+    checkpoints are gone can then be retrained on their own decoder's reconstructions ("": none)."""
     balance_parts: bool = False
     """Weigh every part of the feature layout alike in the PQ-VAE's and the refiner's error, however many
     channels it has (False: every channel alike, the paper's). Channel-alike lets 180 hand channels

@@ -52,6 +52,24 @@ def atomic_path(destination: str | os.PathLike[str], suffix: str | None = None) 
             tmp.unlink()
 
 
+@contextlib.contextmanager
+def atomic_folder(destination: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield an empty folder beside ``destination``; on success it replaces ``destination`` (a
+    model folder: complete or absent, the old one kept until the new one is whole)."""
+    dest = Path(destination)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{dest.name}.", dir=dest.parent))
+    try:
+        yield tmp
+        tmp.chmod(0o755)
+        if dest.exists():
+            shutil.rmtree(dest)
+        tmp.rename(dest)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp)
+
+
 def write_text_atomic(destination: str | os.PathLike[str], text: str) -> None:
     with atomic_path(destination) as tmp:
         tmp.write_text(text, encoding="utf-8")

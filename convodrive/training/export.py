@@ -19,7 +19,6 @@ import inspect
 import io
 import json
 import logging
-import shutil
 import subprocess
 import tempfile
 import warnings
@@ -32,6 +31,7 @@ import torch
 
 from convodrive.neural.folder import MODEL_FORMAT, MODEL_FORMAT_VERSION, MODEL_JSON, sha256_file
 from convodrive.neural.session import Graph, SessionOptions
+from convodrive.plumbing.atomic import atomic_folder
 from convodrive.plumbing.errors import InputFileError, UserError
 from convodrive.training.checkpoint import Checkpoint, load_checkpoint, load_weights
 from convodrive.training.model_card import model_card
@@ -224,9 +224,7 @@ def export_model(
             f"--float {','.join(unknown)}: no such graph in {recipe.name}'s {stage} export "
             f"(graphs: {', '.join(g.name for g in graphs)})"
         )
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
+    with atomic_folder(out) as tmp:
         exported = _GraphsReport(exporter or export_graph)
         for g in graphs:
             exported.add(g, tmp, tolerance, int8 and g.name not in keep_float)
@@ -236,13 +234,6 @@ def export_model(
         meta["files"] = {p.name: sha256_file(p) for p in sorted(tmp.iterdir()) if p.is_file()}
         (tmp / MODEL_JSON).write_text(json.dumps(meta, indent=2), encoding="utf-8")
         (tmp / "MODEL_CARD.md").write_text(model_card(recipe, config, spec, meta), encoding="utf-8")
-        tmp.chmod(0o755)
-        if out.exists():
-            shutil.rmtree(out)
-        tmp.rename(out)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp)
     return ExportResult(out, exported.parity, exported.int8 or None)
 
 

@@ -33,11 +33,13 @@ from convodrive.training.recipe import (
     Batch,
     DataSpec,
     GraphSpec,
+    StartingPoint,
     StepContext,
     TrainingData,
     model_device,
     to_device,
 )
+from convodrive.training.recipes.probtalk_decoder import load_exported_decoder
 from convodrive.training.recipes.probtalk_losses import (
     context_masks,
     crop,
@@ -192,6 +194,12 @@ class ProbTalkRecipe(StagedRecipe):
 
     def network(self, config: ProbTalkConfig, bands: int, speakers: int, stage: str) -> torch.nn.Module:
         return ProbTalk(config, rep.FEATURE_DIM, bands, speakers, stage)
+
+    def initialise(self, model: torch.nn.Module, start: StartingPoint | None, spec: DataSpec, stage: str) -> None:
+        super().initialise(model, start, spec, stage)
+        assert isinstance(model, ProbTalk)
+        if model.decoder_frozen:
+            load_exported_decoder(model.config.vq_decoder_from, model.vq, spec.arrays)
 
     def inherited(self, model: torch.nn.Module) -> tuple[str, ...]:
         assert isinstance(model, ProbTalk)

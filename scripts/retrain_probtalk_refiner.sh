@@ -1,0 +1,56 @@
+#!/usr/bin/env bash
+# Retrain the refiner of the shipped ProbTalk weights on their own PQ-VAE decoder and put its graph
+# in place; their vq and predictor graphs stay to the bit.
+#
+#   scripts/setup.sh --dev && scripts/retrain_probtalk_refiner.sh [CORPUS_DIR] [RUN_DIR]
+#
+# Why: the refiner learns to correct the decoder it runs after, and the vq and predictor stages the
+# package ships (made by scripts/train_probtalk.sh; their card says where and how) have no torch
+# checkpoints left, while a rerun of those stages on another CPU draws other codes (the model
+# card's Still open). So:
+#   1. the vq stage with vq_decoder_from: a new encoder fitted to the shipped decoder and codebooks,
+#      which stay frozen (2000 steps);
+#   2. the predictor stage for one step: the refiner stage inherits a predictor; only the refiner's
+#      graph is kept, so this one is never used;
+#   3. the refiner stage (3000 steps) with refiner_fd 0.1 (the face's Fréchet distance over each
+#      batch) and refiner_shut 2.0 (no jaw opened past the truth in self's silence);
+#   4. `convodrive export --int8 --onto MODEL --graphs refiner` beside the shipped folder, and the
+#      test split scored against the shipped weights.
+# The shipped folder is replaced only with SHIP=1, after the figures were read (the model card
+# says which must improve); about 30 minutes on 2 idle CPU cores. The corpus is made unless
+# CORPUS_DIR holds one (scripts/train_corpus.sh, REAL_VOICES=1 by default: the shipped weights'
+# corpus). THREADS: torch's CPU threads (default: the machine's cores).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+source scripts/real_voices_recipe.sh  # REAL_VOICES, default_corpus, augment
+corpus=${1:-$default_corpus}
+runs=${2:-runs/probtalk-refiner}
+threads=${THREADS:-$(nproc)}
+bin=.venv/bin
+model=convodrive/generators/probtalk/model
+scripts/train_corpus.sh "$corpus"
+
+train() {
+    local stage=$1 steps=$2
+    shift 2
+    "$bin/convodrive" train probtalk --corpus "$corpus" --preset small --seed 0 --threads "$threads" \
+        --stage "$stage" --steps "$steps" --set "decay_steps=$((steps > 20 ? steps - 20 : steps))" --out "$runs/$stage" "$@"
+}
+train vq 2000 --set "vq_decoder_from=$model"
+train predictor 1 --set warmup_steps=0 --init "$runs/vq"
+train refiner 3000 --init "$runs/predictor" "${augment[@]}" \
+    --set refiner_fd=0.1 --set refiner_shut=2.0
+
+rm -rf "$runs/grafted"
+"$bin/convodrive" export "$runs/refiner" --int8 --onto "$model" --graphs refiner --out "$runs/grafted"
+"$bin/convodrive" eval compare --corpus "$corpus" --split test --stratum synthesised --samples 4 --seed 0 --seeds 4 \
+    --generators ground-truth,knn,shipped=probtalk,retrained=probtalk -G "retrained.model=$runs/grafted" \
+    --out "$runs/compare"
+if [ "${SHIP:-0}" = 1 ]; then
+    cp "$model/MODEL_CARD.md" "$runs/grafted/MODEL_CARD.md"
+    rm -rf "$model.partial" && cp -r "$runs/grafted" "$model.partial"
+    rm -rf "$model" && mv "$model.partial" "$model"
+    echo "retrain_probtalk_refiner: the refiner in $model replaced; bring its MODEL_CARD.md up to date"
+else
+    echo "retrain_probtalk_refiner: $runs/grafted and $runs/compare/compare.md (SHIP=1 puts it in place)"
+fi

@@ -1,0 +1,96 @@
+"""A refiner retrained for exported probtalk weights whose torch checkpoints are gone: the vq stage
+fits a new encoder to the folder's own decoder and codebooks (``vq_decoder_from``, read back from
+the ONNX graph with its folded norms), a refiner learns on top, and ``export --onto --graphs``
+puts its graph into the folder, keeping every other file to the bit."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from convodrive.generators.probtalk.generator import ProbTalkGenerator
+from convodrive.models.probtalk_config import ProbTalkConfig
+from convodrive.models.probtalk_pqvae import PQVAE
+from convodrive.motion import representation as rep
+from convodrive.plumbing.errors import UserError
+from convodrive.training.checkpoint import load_checkpoint
+from convodrive.training.loop import TrainRequest, train
+from tests.conftest import cli_in_process, require
+from tests.corpora import dyadic_audio
+
+pytestmark = [require("torch"), require("onnxruntime"), pytest.mark.timeout(900)]
+
+
+def _train(corpus: Path, stage: str, out: Path, init: Path | None = None, **settings: object) -> Path:
+    request = TrainRequest(
+        "probtalk", corpus, preset="tiny", stage=stage, out=out, device="cpu", progress=False, init=init,
+        settings=dict(settings),
+    )  # fmt: skip
+    train(request)
+    return out
+
+
+def _weights(run: Path, prefix: str) -> dict[str, torch.Tensor]:
+    ckpt = load_checkpoint(sorted((run / "checkpoints").iterdir())[-1])
+    return {k: v for k, v in ckpt.model_weights().items() if k.startswith(prefix)}
+
+
+def test_an_encoder_fitted_to_a_folder_s_decoder_and_its_refiner_grafted_back(
+    probtalk_stages: dict[str, Path], tiny_corpus: Path, tmp_path: Path
+) -> None:
+    from convodrive.training.recipes.probtalk_decoder import decoder_graph, decoder_parity
+
+    model = probtalk_stages["model"]
+    vq = _train(tiny_corpus, "vq", tmp_path / "vq", vq_decoder_from=str(model))
+    first, fitted = _weights(probtalk_stages["vq"], "vq."), _weights(vq, "vq.")
+    # The decoder is the folder's (its norms folded: the tensors differ, what it decodes does not);
+    # the codebooks are the folder's; the encoder learnt.
+    assert torch.equal(fitted["vq.quantizer.codebooks"], first["vq.quantizer.codebooks"])
+    ckpt = load_checkpoint(sorted((vq / "checkpoints").iterdir())[-1])
+    config = ckpt.state["model_config"]
+    net = PQVAE(
+        rep.FEATURE_DIM, ProbTalkConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in config.items()})
+    )
+    net.load_state_dict({k[3:]: v for k, v in fitted.items()})
+    assert decoder_parity(decoder_graph(model), net) < 1e-4  # after training too: frozen
+    assert any(not torch.equal(fitted[k], first[k]) for k in fitted if k.startswith("vq.encoder."))
+
+    predictor = _train(tiny_corpus, "predictor", tmp_path / "predictor", vq, steps=1)
+    refiner = _train(tiny_corpus, "refiner", tmp_path / "refiner", predictor, refiner_fd=0.1, refiner_shut=1.0)
+
+    out = tmp_path / "grafted"
+    done = cli_in_process("export", str(refiner), "--out", str(out), "--onto", str(model), "--graphs", "refiner")
+    assert done.returncode == 0, done.stderr
+    meta, base = (json.loads((p / "model.json").read_text()) for p in (out, model))
+    for name, digest in base["files"].items():
+        if name != base["graphs"]["refiner"]["file"]:
+            assert meta["files"][name] == digest and (out / name).read_bytes() == (model / name).read_bytes()
+    assert meta["files"]["refiner.onnx"] != base["files"]["refiner.onnx"]
+    assert meta["architecture"]["refiner_fd"] == 0.1 and meta["architecture"]["refiner_shut"] == 1.0
+    assert meta["grafted"]["refiner"]["stage"] == "refiner"
+    audio = dyadic_audio(seconds=3.0)
+    moved = [rep.encode_clip(ProbTalkGenerator({"model": str(p)}).generate(audio, seed=0)[0]) for p in (model, out)]
+    assert moved[0].shape == moved[1].shape and not np.allclose(moved[0], moved[1])
+
+
+def test_graft_mistakes_are_one_line(probtalk_stages: dict[str, Path], tiny_corpus: Path, tmp_path: Path) -> None:
+    model, refiner = probtalk_stages["model"], probtalk_stages["refiner"]
+    other = _train(tiny_corpus, "refiner", tmp_path / "other", probtalk_stages["predictor"], steps=1, dropout=0.2)
+    for args, text in (
+        (["--graphs", "refiner"], "needs --onto"),
+        (["--onto", str(model), "--graphs", "mixer"], "mixer: not a graph of"),
+        (["--onto", str(tmp_path), "--graphs", "refiner"], "not a model folder"),
+    ):
+        done = cli_in_process("export", str(refiner), "--out", str(tmp_path / "o"), *args)
+        assert done.returncode == 2 and text in done.stderr and len(done.stderr.splitlines()) == 1, done.stderr
+    done = cli_in_process(
+        "export", str(other), "--out", str(tmp_path / "o"), "--onto", str(model), "--graphs", "refiner"
+    )
+    assert done.returncode == 2 and "other settings than the replaced graphs' (dropout)" in done.stderr, done.stderr
+    assert not (tmp_path / "o").exists() and [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+    with pytest.raises(UserError, match="not a probtalk model folder with a vq_decoder graph"):
+        _train(tiny_corpus, "vq", tmp_path / "wrong", steps=1, vq_decoder_from=str(tmp_path))
