@@ -17,51 +17,56 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from convodrive.neural.folder import MODEL_JSON, sha256_file
+from convodrive.neural.folder import MODEL_JSON, load_model_folder, sha256_file
 from convodrive.plumbing.atomic import atomic_folder
 from convodrive.plumbing.errors import UserError
 
 
-def _meta(folder: Path, role: str) -> dict[str, Any]:
-    try:
-        return json.loads((folder / MODEL_JSON).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        raise UserError(f"{role} {folder}: not a model folder (no readable {MODEL_JSON})") from None
+def _verified(folder: Path) -> dict[str, Any]:
+    """``folder``'s model.json as plain JSON, every file's sha256 checked (``load_model_folder``)."""
+    return json.loads(json.dumps(load_model_folder(folder).spec))
+
+
+def _owned(names: Sequence[str]) -> tuple[str, ...]:
+    """The prefixes of the settings the replaced graphs own: ``refiner`` owns ``refiner_*``."""
+    return tuple(f"{n.split('_')[0]}_" for n in names)
 
 
 def check_onto(onto: Path, names: Sequence[str]) -> None:
     """Before any export: ``onto`` is a model folder holding each of ``names``."""
-    graphs = _meta(onto, "--onto").get("graphs", {})
+    _check_names(load_model_folder(onto).graphs, names, onto)
+
+
+def _check_names(graphs: dict[str, Any], names: Sequence[str], onto: Path) -> None:
     missing = [n for n in names if n not in graphs]
     if not names or missing:
         raise UserError(f"--graphs {','.join(missing) or '(none)'}: not a graph of {onto} ({', '.join(graphs)})")
 
 
 def check_graftable(source: dict[str, Any], base: dict[str, Any], names: Sequence[str], onto: Path) -> None:
-    """The checks the module docstring names, each a one-line ``UserError``."""
+    """The checks the module docstring names beyond ``check_onto``'s, each a one-line ``UserError``."""
     if source.get("model") != base.get("model"):
         raise UserError(f"--onto {onto}: a {base.get('model')} model, the run is {source.get('model')}")
-    missing = [n for n in names if n not in source["graphs"] or n not in base["graphs"]]
-    if not names or missing:
+    missing = [n for n in names if n not in source["graphs"]]
+    if missing:
         raise UserError(
-            f"--graphs {','.join(missing) or '(none)'}: not a graph of both folders "
-            f"(the run's: {', '.join(source['graphs'])}; --onto's: {', '.join(base['graphs'])})"
+            f"--graphs {','.join(missing)}: not a graph of the run's export ({', '.join(source['graphs'])})"
         )
     graph_files = {g["file"] for g in (*source["graphs"].values(), *base["graphs"].values())}
     data = {f: h for f, h in base["files"].items() if f not in graph_files}
     if source.get("features") != base.get("features") or any(source["files"].get(f) != h for f, h in data.items()):
         raise UserError(f"--onto {onto}: learnt from other data (its features or normalisation differ from the run's)")
-    prefixes = tuple(f"{n.split('_')[0]}_" for n in names)
     arch, theirs = source.get("architecture", {}), base.get("architecture", {})
     # A setting only one folder has was added after the other was made; its default is the old behaviour.
-    foreign = sorted(k for k in set(arch) & set(theirs) if arch[k] != theirs[k] and not k.startswith(prefixes))
+    foreign = sorted(k for k in set(arch) & set(theirs) if arch[k] != theirs[k] and not k.startswith(_owned(names)))
     if foreign:
         raise UserError(f"--onto {onto}: other settings than the replaced graphs' ({', '.join(foreign)})")
 
 
 def graft(source: Path, onto: Path, names: Sequence[str], out: Path) -> None:
     """Write ``out``: ``onto`` with the graphs ``names`` of the exported folder ``source``."""
-    src, base = _meta(source, "export"), _meta(onto, "--onto")
+    src, base = _verified(source), _verified(onto)
+    _check_names(base["graphs"], names, onto)
     check_graftable(src, base, names, onto)
     meta = json.loads(json.dumps(base))
     with atomic_folder(out) as tmp:
@@ -72,7 +77,7 @@ def graft(source: Path, onto: Path, names: Sequence[str], out: Path) -> None:
         for name in names:
             shutil.copy2(source / src["graphs"][name]["file"], tmp / src["graphs"][name]["file"])
             _take_graph(meta, src, name)
-        prefixes = tuple(f"{n.split('_')[0]}_" for n in names)
+        prefixes = _owned(names)
         meta["architecture"] = {
             **{k: v for k, v in base.get("architecture", {}).items() if not k.startswith(prefixes)},
             **{k: v for k, v in src.get("architecture", {}).items() if k.startswith(prefixes)},

@@ -13,11 +13,10 @@ import pytest
 import torch
 
 from convodrive.generators.probtalk.generator import ProbTalkGenerator
-from convodrive.models.probtalk_config import ProbTalkConfig
-from convodrive.models.probtalk_pqvae import PQVAE
 from convodrive.motion import representation as rep
 from convodrive.plumbing.errors import UserError
 from convodrive.training.checkpoint import load_checkpoint
+from convodrive.training.export import restore
 from convodrive.training.loop import TrainRequest, train
 from tests.conftest import cli_in_process, require
 from tests.corpora import dyadic_audio
@@ -42,7 +41,8 @@ def _weights(run: Path, prefix: str) -> dict[str, torch.Tensor]:
 def test_an_encoder_fitted_to_a_folder_s_decoder_and_its_refiner_grafted_back(
     probtalk_stages: dict[str, Path], tiny_corpus: Path, tmp_path: Path
 ) -> None:
-    from convodrive.training.recipes.probtalk_decoder import decoder_graph, decoder_parity
+    from convodrive.neural.folder import load_model_folder
+    from convodrive.training.recipes.probtalk_decoder import decoder_parity
 
     model = probtalk_stages["model"]
     vq = _train(tiny_corpus, "vq", tmp_path / "vq", vq_decoder_from=str(model))
@@ -50,13 +50,8 @@ def test_an_encoder_fitted_to_a_folder_s_decoder_and_its_refiner_grafted_back(
     # The decoder is the folder's (its norms folded: the tensors differ, what it decodes does not);
     # the codebooks are the folder's; the encoder learnt.
     assert torch.equal(fitted["vq.quantizer.codebooks"], first["vq.quantizer.codebooks"])
-    ckpt = load_checkpoint(sorted((vq / "checkpoints").iterdir())[-1])
-    config = ckpt.state["model_config"]
-    net = PQVAE(
-        rep.FEATURE_DIM, ProbTalkConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in config.items()})
-    )
-    net.load_state_dict({k[3:]: v for k, v in fitted.items()})
-    assert decoder_parity(decoder_graph(model), net) < 1e-4  # after training too: frozen
+    net = restore(vq)[4].vq
+    assert decoder_parity(load_model_folder(model).graph_path("vq_decoder"), net) < 1e-4  # after training too: frozen
     assert any(not torch.equal(fitted[k], first[k]) for k in fitted if k.startswith("vq.encoder."))
 
     predictor = _train(tiny_corpus, "predictor", tmp_path / "predictor", vq, steps=1)
@@ -83,7 +78,7 @@ def test_graft_mistakes_are_one_line(probtalk_stages: dict[str, Path], tiny_corp
     for args, text in (
         (["--graphs", "refiner"], "needs --onto"),
         (["--onto", str(model), "--graphs", "mixer"], "mixer: not a graph of"),
-        (["--onto", str(tmp_path), "--graphs", "refiner"], "not a model folder"),
+        (["--onto", str(tmp_path), "--graphs", "refiner"], "not a convodrive model folder"),
     ):
         done = cli_in_process("export", str(refiner), "--out", str(tmp_path / "o"), *args)
         assert done.returncode == 2 and text in done.stderr and len(done.stderr.splitlines()) == 1, done.stderr
@@ -92,5 +87,5 @@ def test_graft_mistakes_are_one_line(probtalk_stages: dict[str, Path], tiny_corp
     )
     assert done.returncode == 2 and "other settings than the replaced graphs' (dropout)" in done.stderr, done.stderr
     assert not (tmp_path / "o").exists() and [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
-    with pytest.raises(UserError, match="not a probtalk model folder with a vq_decoder graph"):
+    with pytest.raises(UserError, match="model.json: missing: not a convodrive model folder"):
         _train(tiny_corpus, "vq", tmp_path / "wrong", steps=1, vq_decoder_from=str(tmp_path))

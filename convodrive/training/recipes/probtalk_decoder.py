@@ -10,29 +10,18 @@ Runtime says whether the graph was read right.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from convodrive.models.probtalk_pqvae import PQVAE
+from convodrive.neural.folder import load_model_folder
 from convodrive.plumbing.errors import UserError
 
 PREFIX = "owner.vq.decoder."
 """Export's name for the decoder's weights (``GraphModule`` holds the model as ``owner``)."""
 PARITY_TOLERANCE = 1e-4
-
-
-def decoder_graph(folder: Path) -> Path:
-    """The folder's ``vq_decoder`` graph file; a folder without one is a ``UserError``."""
-    meta_path = folder / "model.json"
-    try:
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
-        entry = meta["graphs"]["vq_decoder"]["file"]
-    except (OSError, ValueError, KeyError, TypeError):
-        raise UserError(f"vq_decoder_from={folder}: not a probtalk model folder with a vq_decoder graph") from None
-    return folder / entry
 
 
 def load_exported_decoder(folder: str | Path, vq: PQVAE, normalisation: dict[str, np.ndarray]) -> float:
@@ -42,8 +31,12 @@ def load_exported_decoder(folder: str | Path, vq: PQVAE, normalisation: dict[str
     import onnx
     from onnx import numpy_helper
 
-    path = decoder_graph(Path(folder))
-    _check_same_data(Path(folder), normalisation)
+    found = load_model_folder(folder)  # every file's sha256 checked
+    path, theirs = found.graph_path("vq_decoder"), found.arrays("normalisation.npz")
+    if any(not np.allclose(theirs[k], normalisation[k], atol=1e-5) for k in ("mean", "std")):
+        raise UserError(
+            f"vq_decoder_from={folder}: learnt from other data (its normalisation differs from this corpus's)"
+        )
     try:
         graph = onnx.load(str(path)).graph
     except Exception as exc:  # noqa: BLE001 - protobuf's decode errors are no OSError
@@ -69,18 +62,6 @@ def load_exported_decoder(folder: str | Path, vq: PQVAE, normalisation: dict[str
     if not worst <= PARITY_TOLERANCE:
         raise UserError(f"{path}: read back, the decoder differs from the graph by {worst:.3g}")
     return worst
-
-
-def _check_same_data(folder: Path, normalisation: dict[str, np.ndarray]) -> None:
-    try:
-        with np.load(folder / "normalisation.npz") as saved:
-            theirs = {k: saved[k] for k in ("mean", "std")}
-    except (OSError, KeyError, ValueError):
-        raise UserError(f"vq_decoder_from={folder}: no readable normalisation.npz") from None
-    if any(not np.allclose(theirs[k], normalisation[k], atol=1e-5) for k in theirs):
-        raise UserError(
-            f"vq_decoder_from={folder}: learnt from other data (its normalisation differs from this corpus's)"
-        )
 
 
 def _identity_norm(key: str, value: torch.Tensor, vq: PQVAE) -> torch.Tensor:
