@@ -110,16 +110,36 @@ def test_hurry_reaches_the_child(tmp_path: Path) -> None:
 
 
 def test_a_second_stop_drops_the_backlog_and_hurries_every_backend(tmp_path: Path) -> None:
-    """Stop once: file backends still get the frames already made. Stop again: at once."""
+    """Stop once: file backends still get the frames already made. Stop again: at once.
+
+    Both stops follow the run's own progress, not wall time: under a loaded CI machine the clock
+    may start late, and a timer would stop a run that had barely begun."""
     flag = tmp_path / "hurried"
     slow = ChildProbeBackend({"name": "slow", "delay": 0.1, "hurry_file": str(flag)})
     slow.realtime = False  # a file backend: a backlog, not a latest-value slot
-    scheduler = Scheduler(neutral_frames(10_000), _opened([slow], tmp_path, False), clock=MonotonicClock())
-    threading.Timer(1.0, scheduler.request_stop).start()
-    threading.Timer(1.5, scheduler.hurry).start()
+    stop_at = 30
+    sent_at_stop: list[int] = []
+
+    def hurry_once_the_backlog_moves() -> None:
+        deadline = time.monotonic() + 60
+        while len(slow.indices) < sent_at_stop[0] + 3 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        scheduler.hurry()
+
+    def stop_at_frame(index: int) -> None:
+        if index == stop_at - 1:
+            sent_at_stop.append(len(slow.indices))
+            scheduler.request_stop()
+            threading.Thread(target=hurry_once_the_backlog_moves, daemon=True).start()
+
+    scheduler = Scheduler(
+        neutral_frames(10_000), _opened([slow], tmp_path, False), clock=MonotonicClock(), on_frame=stop_at_frame
+    )
     result = scheduler.run()
     assert result.interrupted and flag.exists()
     stats = result.backends[0]
-    assert result.frames >= 25 and stats.sent >= 12, "after the first stop, the backlog kept going out"
+    assert result.frames == stop_at, "the first stop ends the clock at the next frame boundary"
+    assert sent_at_stop[0] < stop_at - 3, "a backlog was waiting when the run stopped"
+    assert stats.sent >= sent_at_stop[0] + 3, "after the first stop, the backlog kept going out"
     assert stats.dropped > 0 and stats.sent + stats.dropped == result.frames
     assert slow.indices == list(range(stats.sent))

@@ -57,8 +57,12 @@ def test_offline_delivers_every_frame_to_every_backend_without_sleeping(tmp_path
 
 def test_request_stop_closes_every_backend(tmp_path: Path) -> None:
     fast = CountingBackend({"name": "fast"})
-    scheduler = Scheduler(neutral_frames(10_000), _open([fast], tmp_path, False), clock=MonotonicClock())
-    threading.Timer(0.3, scheduler.request_stop).start()
+    scheduler = Scheduler(
+        neutral_frames(10_000),
+        _open([fast], tmp_path, False),
+        clock=MonotonicClock(),
+        on_start=lambda: threading.Timer(0.3, scheduler.request_stop).start(),  # timed from the clock's start
+    )
     result = scheduler.run()
     assert result.interrupted
     assert 0 < result.frames < 100
