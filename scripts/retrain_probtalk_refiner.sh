@@ -13,13 +13,20 @@
 #   2. the predictor stage for one step: the refiner stage inherits a predictor; only the refiner's
 #      graph is kept, so this one is never used;
 #   3. the refiner stage (3000 steps) with refiner_fd 0.1 (the face's Fréchet distance over each
-#      batch) and refiner_shut 2.0 (no jaw opened past the truth in self's silence);
-#   4. `convodrive export --int8 --onto MODEL --graphs refiner` beside the shipped folder, and the
-#      test split scored against the shipped weights.
+#      batch), refiner_shut 2.0 (no jaw opened past the truth in self's silence) and
+#      refiner_teacher (the body's target is the shipped refiner's output, not the truth: the
+#      face's terms would otherwise take what the old refiner did for the body);
+#   4. `convodrive export --int8 --onto MODEL --graphs refiner` beside the shipped folder (the
+#      refiner's motion projection stays float), and the test split scored against the shipped
+#      weights.
 # The shipped folder is replaced only with SHIP=1, after the figures were read (the model card
 # says which must improve); about 30 minutes on 2 idle CPU cores. The corpus is made unless
 # CORPUS_DIR holds one (scripts/train_corpus.sh, REAL_VOICES=1 by default: the shipped weights'
-# corpus). THREADS: torch's CPU threads (default: the machine's cores).
+# corpus). THREADS: torch's CPU threads (default: the machine's cores). TEACHER: the model folder
+# whose refiner teaches the body (default: the shipped folder). The shipped refiner was taught by
+# the one before it; to remake it, take that folder from git history first:
+#   mkdir -p old && git archive d69c14e convodrive/generators/probtalk/model | tar -x -C old
+#   TEACHER=old/convodrive/generators/probtalk/model SHIP=1 scripts/retrain_probtalk_refiner.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/real_voices_recipe.sh  # REAL_VOICES, default_corpus, augment
@@ -28,6 +35,7 @@ runs=${2:-runs/probtalk-refiner}
 threads=${THREADS:-$(nproc)}
 bin=.venv/bin
 model=convodrive/generators/probtalk/model
+teacher=${TEACHER:-$model}
 scripts/train_corpus.sh "$corpus"
 
 train() {
@@ -39,7 +47,7 @@ train() {
 train vq 2000 --set "vq_decoder_from=$model"
 train predictor 1 --set warmup_steps=0 --init "$runs/vq"
 train refiner 3000 --init "$runs/predictor" "${augment[@]}" \
-    --set refiner_fd=0.1 --set refiner_shut=2.0
+    --set refiner_fd=0.1 --set refiner_shut=2.0 --set "refiner_teacher=$teacher"
 
 rm -rf "$runs/grafted"
 "$bin/convodrive" export "$runs/refiner" --int8 --onto "$model" --graphs refiner --out "$runs/grafted"

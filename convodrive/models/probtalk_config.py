@@ -119,6 +119,18 @@ class ProbTalkConfig:
     A second training seed (1) met the real-voice targets without it too (0.989; at 1.0: 0.987), FD_g
     face 1.57 -> 1.34, body 8.77 -> 9.68; at both seeds it kept the corpus's mouth shut where self is
     silent more often (0.967 -> 0.983, 0.963 -> 0.981)."""
+    refiner_teacher: str = ""
+    """A probtalk model folder whose refiner, run on the same input, gives the target of
+    ``refiner_teacher_groups`` in place of the truth (``probtalk_teacher``): a refiner retrained
+    for the face keeps what the folder's refiner did for the body ("": none, the truth for all).
+    With ``refiner_fd`` 0.1 and ``refiner_shut`` 2.0, 3000 steps on the shipped decoder, test split
+    seeds 0-3, int8: FD_g body 7.55 against 7.84 without it (the old refiner's: 7.36), face 1.14
+    against 1.27. At ``refiner_fd`` 0.2: body 7.85, face 1.18. Tried beside it and dropped: half the
+    windows' input drawn by the folder's own predictor, as at run time (the face's target still the
+    truth): body 7.91, face 1.45, the squared error against the truth of a drawn window pulled its
+    face to the mean."""
+    refiner_teacher_groups: tuple[str, ...] = ("body",)
+    """The groups whose target ``refiner_teacher`` gives."""
     speaker_dim: int = 512
     """Size of the speaker embedding that modulates every sub-layer."""
     dropout: float = 0.1
@@ -147,6 +159,8 @@ class ProbTalkConfig:
             raise ValueError("width must be a multiple of heads (predictor and refiner)")
         if not set(self.refiner_fd_groups) <= {"face", "body"}:
             raise ValueError(f"refiner_fd_groups may hold 'face' and 'body', got {self.refiner_fd_groups!r}")
+        if not set(self.refiner_teacher_groups) <= {"face", "body"}:
+            raise ValueError(f"refiner_teacher_groups may hold 'face' and 'body', got {self.refiner_teacher_groups!r}")
         for name in ("vq_loss", "refiner_loss"):
             if getattr(self, name) not in ("l1", "l2"):
                 raise ValueError(f"{name} must be 'l1' or 'l2', got {getattr(self, name)!r}")

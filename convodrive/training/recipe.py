@@ -100,6 +100,8 @@ class GraphSpec:
     dynamic: dict[str, dict[int, str]]
     parity_sizes: tuple[int, ...] = (1, 7, 33)
     description: str = ""
+    float_from: tuple[str, ...] = ()
+    """Inputs whose first matrix products int8 export leaves in float (``quantise_int8``)."""
 
 
 @dataclasses.dataclass

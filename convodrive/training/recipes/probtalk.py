@@ -48,6 +48,7 @@ from convodrive.training.recipes.probtalk_losses import (
     reconstruction_fd,
     refiner_loss,
 )
+from convodrive.training.recipes.probtalk_teacher import check_teacher
 from convodrive.training.staged import StagedRecipe
 from convodrive.training.windows import window_data
 
@@ -200,6 +201,8 @@ class ProbTalkRecipe(StagedRecipe):
         assert isinstance(model, ProbTalk)
         if model.decoder_frozen:
             load_exported_decoder(model.config.vq_decoder_from, model.vq, spec.arrays)
+        if stage == "refiner" and model.config.refiner_teacher:
+            check_teacher(model.config.refiner_teacher, spec.arrays, spec.info["speakers"])
 
     def inherited(self, model: torch.nn.Module) -> tuple[str, ...]:
         assert isinstance(model, ProbTalk)

@@ -182,4 +182,5 @@ def _refiner_graph(model: ProbTalk, ex: _Inputs) -> GraphSpec:
         refiner_inputs,
         {"motion": frames_axes, "audio": frames_axes, "known_mask": frames_axes, "speaker": {0: "takes"}},
         description=f"(takes, frames, {DIM}) coarse motion with known frames in, log-mel, known mask, speaker -> refined motion",
+        float_from=("motion",),  # the face's small movements survive only a float input projection
     )

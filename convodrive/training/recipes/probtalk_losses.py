@@ -18,6 +18,7 @@ from convodrive.models.probtalk_config import ProbTalkConfig
 from convodrive.motion import representation as rep
 from convodrive.motion.channels import ARKIT_NAMES
 from convodrive.training.recipe import Batch
+from convodrive.training.recipes.probtalk_teacher import taught_target
 
 EYELIDS = ("eyeBlinkLeft", "eyeBlinkRight")
 """The ARKit channels ``eyelid_part`` weighs as a part of their own."""
@@ -129,7 +130,8 @@ def refiner_loss(
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Error (``refiner_loss``: L1, the reference's, or squared) of the refined unknown frames against
     the truth, and of velocities everywhere (so the seam with the known frames counts), refining
-    noisy VQ reconstructions (the reference's recipe); with ``refiner_fd``, plus the distance in distribution of
+    noisy VQ reconstructions (the reference's recipe); with ``refiner_teacher``, the target of its
+    groups is that folder's refiner's output (``taught_target``); with ``refiner_fd``, plus the distance in distribution of
     each of ``refiner_fd_groups`` (``group_frechet``); with ``refiner_shut``, plus the jaw's
     opening past the truth in self's silence (``shut_mouth_error``)."""
     assert model.refiner is not None
@@ -140,13 +142,19 @@ def refiner_loss(
         coarse = coarse + config.refiner_noise * torch.randn(coarse.shape, generator=generator).to(coarse.device)
     combined = known * motion + (1 - known) * coarse
     refined = model.refiner(combined, model.audio_norm(batch["audio"]), known, batch["speaker"])
+    target = motion
+    if config.refiner_teacher:
+        groups = config.refiner_teacher_groups
+        target = taught_target(
+            config.refiner_teacher, groups, combined, batch["audio"], known, batch["speaker"], motion
+        )
     weight = part_weights(config, mask.device)
     counted = mask if weight is None else mask * weight
     free = counted * (1 - known)
     name = config.refiner_loss
     error = MASKED_ERRORS[name]
-    rec = error(refined, motion, free)
-    vel = error(refined.diff(dim=1), motion.diff(dim=1), counted)
+    rec = error(refined, target, free)
+    vel = error(refined.diff(dim=1), target.diff(dim=1), counted)
     coarse = error(combined, motion, free)
     loss, figures = (
         rec + config.velocity_weight * vel,
