@@ -38,15 +38,10 @@ model=convodrive/generators/probtalk/model
 teacher=${TEACHER:-$model}
 scripts/train_corpus.sh "$corpus"
 
-train() {
-    local stage=$1 steps=$2
-    shift 2
-    "$bin/convodrive" train probtalk --corpus "$corpus" --preset small --seed 0 --threads "$threads" \
-        --stage "$stage" --steps "$steps" --set "decay_steps=$((steps > 20 ? steps - 20 : steps))" --out "$runs/$stage" "$@"
-}
+source scripts/probtalk_stage.sh  # train STAGE STEPS [ARGS...]
 train vq 2000 --set "vq_decoder_from=$model"
 train predictor 1 --set warmup_steps=0 --init "$runs/vq"
-train refiner 3000 --init "$runs/predictor" "${augment[@]}" \
+train refiner 3000 --init "$runs/predictor" \
     --set refiner_fd=0.1 --set refiner_shut=2.0 --set "refiner_teacher=$teacher"
 
 rm -rf "$runs/grafted"

@@ -32,14 +32,7 @@ model=convodrive/generators/probtalk/model
 started=$(date +%s)
 scripts/train_corpus.sh "$corpus"
 
-# Each stage: its steps, the learning rate decaying over them (the preset's warm-up is 20 steps).
-train() {
-    local stage=$1 steps=$2 heard=("${augment[@]}")
-    shift 2
-    if [ "$stage" = vq ]; then heard=(); fi  # the PQ-VAE hears no audio: nothing to augment
-    "$bin/convodrive" train probtalk --corpus "$corpus" --preset small --seed 0 --threads "$threads" \
-        --stage "$stage" --steps "$steps" --set "decay_steps=$((steps - 20))" --out "$runs/$stage" "${heard[@]}" "$@"
-}
+source scripts/probtalk_stage.sh  # train STAGE STEPS [ARGS...]
 if [ "${SHIP_ONLY:-0}" != 1 ]; then
     train vq 8000
     # 16000 steps scored FGD holistic 25.0 against 31.9 but no better FD_g body (the card's Still open)

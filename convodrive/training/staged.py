@@ -8,6 +8,7 @@ that hold them, trained on the same data (the same normalisation) with the same 
 from __future__ import annotations
 
 import abc
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -18,6 +19,15 @@ from convodrive.training.recipe import DataSpec, Recipe, StartingPoint
 
 NORMALISATION = ("mean", "std", "audio_mean", "audio_std")
 """The data spec's arrays two runs of the same data share."""
+
+
+def check_same_data(
+    theirs: Mapping[str, np.ndarray], ours: Mapping[str, np.ndarray], who: str, keys: Sequence[str] = NORMALISATION
+) -> None:
+    """One-line error naming ``who`` (the setting or option that brought ``theirs``) unless its
+    normalisation arrays ``keys`` are this corpus's: a run learns only from a run of the same data."""
+    if any(not np.allclose(theirs[k], ours[k], atol=1e-5) for k in keys):
+        raise UserError(f"{who}: learnt from other data (its normalisation differs from this corpus's)")
 
 
 class StagedRecipe(Recipe):
@@ -56,11 +66,7 @@ class StagedRecipe(Recipe):
                 f"model '{self.name}': the {stage} stage starts from trained {', '.join(needed)} networks: "
                 f"--init {self.init_hint(stage)}"
             )
-        for key in NORMALISATION:
-            if not np.allclose(start.spec.arrays[key], spec.arrays[key], atol=1e-5):
-                raise UserError(
-                    f"--init {start.path}: learnt from other data (its normalisation differs from this corpus's)"
-                )
+        check_same_data(start.spec.arrays, spec.arrays, f"--init {start.path}")
         own = model.state_dict()
         for name in needed:
             keys = [k for k in own if k.startswith(f"{name}.")]

@@ -18,10 +18,13 @@ import torch
 from convodrive.models.probtalk_pqvae import PQVAE
 from convodrive.neural.folder import load_model_folder
 from convodrive.plumbing.errors import UserError
+from convodrive.training.staged import check_same_data
 
 PREFIX = "owner.vq.decoder."
 """Export's name for the decoder's weights (``GraphModule`` holds the model as ``owner``)."""
 PARITY_TOLERANCE = 1e-4
+FOLDER_NORMALISATION = ("mean", "std")
+"""The normalisation a model folder keeps (the audio's is inside its graphs)."""
 
 
 def load_exported_decoder(folder: str | Path, vq: PQVAE, normalisation: dict[str, np.ndarray]) -> float:
@@ -33,10 +36,7 @@ def load_exported_decoder(folder: str | Path, vq: PQVAE, normalisation: dict[str
 
     found = load_model_folder(folder)  # every file's sha256 checked
     path, theirs = found.graph_path("vq_decoder"), found.arrays("normalisation.npz")
-    if any(not np.allclose(theirs[k], normalisation[k], atol=1e-5) for k in ("mean", "std")):
-        raise UserError(
-            f"vq_decoder_from={folder}: learnt from other data (its normalisation differs from this corpus's)"
-        )
+    check_same_data(theirs, normalisation, f"vq_decoder_from={folder}", FOLDER_NORMALISATION)
     try:
         graph = onnx.load(str(path)).graph
     except Exception as exc:  # noqa: BLE001 - protobuf's decode errors are no OSError

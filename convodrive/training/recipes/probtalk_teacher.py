@@ -19,6 +19,8 @@ from convodrive.motion import representation as rep
 from convodrive.neural.folder import load_model_folder
 from convodrive.neural.session import Graph, SessionOptions
 from convodrive.plumbing.errors import UserError
+from convodrive.training.recipes.probtalk_decoder import FOLDER_NORMALISATION
+from convodrive.training.staged import check_same_data
 
 
 def check_teacher(folder: str, normalisation: dict[str, np.ndarray], speakers: Sequence[str]) -> None:
@@ -27,11 +29,7 @@ def check_teacher(folder: str, normalisation: dict[str, np.ndarray], speakers: S
     found = load_model_folder(folder)  # every file's sha256 checked
     if "refiner" not in found.graphs:
         raise UserError(f"refiner_teacher={folder}: the folder has no refiner graph")
-    theirs = found.arrays("normalisation.npz")
-    if any(not np.allclose(theirs[k], normalisation[k], atol=1e-5) for k in ("mean", "std")):
-        raise UserError(
-            f"refiner_teacher={folder}: learnt from other data (its normalisation differs from this corpus's)"
-        )
+    check_same_data(found.arrays("normalisation.npz"), normalisation, f"refiner_teacher={folder}", FOLDER_NORMALISATION)
     learnt = list(found.spec["features"].get("speakers", []))
     if learnt != list(speakers):
         raise UserError(f"refiner_teacher={folder}: its speakers ({', '.join(learnt)}) are not this corpus's")
