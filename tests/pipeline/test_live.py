@@ -7,6 +7,7 @@ left the speaker and measures when the mouth opened against it.
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import socket
@@ -23,6 +24,7 @@ import soundfile as sf
 
 from convodrive.audio.live.capture import LOST_SECONDS
 from convodrive.audio.synth import speak
+from convodrive.audio.voice_tracker import VoiceParams
 from convodrive.eval.sync import HOP_SECONDS, level_db, mouth_onsets, pair_onsets, speech_onsets
 from convodrive.motion.channels import BLENDSHAPE_INDEX
 from convodrive.motion.npz import load_clip
@@ -299,7 +301,12 @@ def test_microphone_that_disappears(pulse: PulseRig, tmp_path: Path) -> None:
     vad = load_clip(out / "motion.npz").vad[:, 1]
     lost_frame = int(lost[0]["time"] * 30)
     assert vad[:lost_frame].max() > 0.5, "the partner was heard while the microphone worked"
-    assert np.all(vad[lost_frame + 30 :] == 0), "and is silent after it went away (delay and hangover aside)"
+    # What was captured before the loss sits up to the partner delay after it on the time line (a
+    # loaded machine raises that delay), and the voice activity holds on for its hangover after that.
+    delay_frames = math.ceil(report["live"]["latency_ms"]["partner_delay"] / FRAME_MS)
+    silent_from = lost_frame + delay_frames + VoiceParams().vad_hangover + 3  # 3: the feature frames' own reach
+    assert len(vad) - silent_from >= 15, (lost, delay_frames, len(vad))  # half a second left to look at
+    assert np.all(vad[silent_from:] == 0), "and is silent after it went away (delay and hangover aside)"
 
 
 def test_microphone_whose_server_hangs_is_given_up_then_taken_back(pulse: PulseRig, tmp_path: Path) -> None:
