@@ -33,6 +33,7 @@ time-major (t0g0, t0g1, ..., t1g0, ...) to (B, tokens*G). Torch is for training 
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -41,6 +42,7 @@ from convodrive.models.probtalk_blocks import ChannelNorm, ConditionedTransforme
 from convodrive.models.probtalk_config import ProbTalkConfig
 from convodrive.models.probtalk_pqvae import PQVAE
 from convodrive.models.probtalk_predictor import Predictor
+from convodrive.motion import representation as rep
 
 
 # --------------------------------------------------------------------------------------- refiner
@@ -101,6 +103,9 @@ class ProbTalk(nn.Module):
             raise ValueError(f"stage must be one of {STAGES}, got {stage!r}")
         self.config, self.stage = config, stage
         self.audio_norm = AudioNorm(bands)
+        self.register_buffer("shown_low", torch.full((dim,), -torch.inf), persistent=False)
+        self.register_buffer("shown_high", torch.full((dim,), torch.inf), persistent=False)
+        """Normalised bounds of the channels the run clips (``set_shown_range``; none by default)."""
         self.vq = PQVAE(dim, config)
         self.predictor = Predictor(dim, bands, speakers, config) if stage != "vq" else None
         self.refiner = Refiner(dim, bands, speakers, config) if stage == "refiner" else None
@@ -112,6 +117,12 @@ class ProbTalk(nn.Module):
         if self.decoder_frozen:
             self.vq.decoder.requires_grad_(False)
         self.vq.quantizer.updating = stage == "vq" and not self.decoder_frozen
+
+    def set_shown_range(self, mean: np.ndarray, std: np.ndarray) -> None:
+        """Bound the ARKit shapes where the run clips them (``representation.shape_bounds``)."""
+        low, high = rep.shape_bounds(mean, std)
+        self.shown_low.copy_(torch.from_numpy(low))
+        self.shown_high.copy_(torch.from_numpy(high))
 
     def train(self, mode: bool = True) -> ProbTalk:
         super().train(mode)

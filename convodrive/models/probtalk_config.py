@@ -119,6 +119,17 @@ class ProbTalkConfig:
     A second training seed (1) met the real-voice targets without it too (0.989; at 1.0: 0.987), FD_g
     face 1.57 -> 1.34, body 8.77 -> 9.68; at both seeds it kept the corpus's mouth shut where self is
     silent more often (0.967 -> 0.983, 0.963 -> 0.981)."""
+    refiner_shown: bool = False
+    """The refiner's losses read its motion as the run shows it: ARKit shapes clipped to [0, 1]
+    (``shown_motion``). Its distance term then matches the clipped spread, and its error asks only
+    that a shape at rest in the truth stays at or below rest. Without it, the refined shapes' small
+    excursions around rest, clipped, left the mouth's rare shapes (tongueOut, mouthRollLower) ajar
+    in a quarter of the frames: the face's mean was off by 0.22 of its FD_g 1.04 (test split, seeds
+    0-1). With ``refiner_fd`` 0.1, ``refiner_shut`` 2.0 and ``refiner_teacher``, 3000 steps, test
+    split seeds 0-7, int8: FD_g face 0.886 against 1.105 without it (knn 1.10), body 7.86 against
+    7.71. Tried beside it: ``refiner_fd`` 0.05 (seeds 0-3: face 0.915, body 7.82); the taught
+    body's error weighed 3 times (seeds 0-7: face 1.03, body 7.74); 1000 steps of it from the
+    refiner before (seeds 0-3: face 1.01, body 7.94)."""
     refiner_teacher: str = ""
     """A probtalk model folder whose refiner, run on the same input, gives the target of
     ``refiner_teacher_groups`` in place of the truth (``probtalk_teacher``): a refiner retrained

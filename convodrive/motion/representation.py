@@ -188,6 +188,17 @@ def decode(features: np.ndarray, base: MotionClip | None = None, fps: float | No
     )
 
 
+def shape_bounds(mean: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(FEATURE_DIM,) normalised low and high bounds of the ARKit shapes, where ``decode`` clips
+    them to [0, 1]; infinite elsewhere. Motion past them shows the same as motion at them."""
+    low = np.full(FEATURE_DIM, -np.inf, np.float32)
+    high = np.full(FEATURE_DIM, np.inf, np.float32)
+    columns = PARTS["arkit"]
+    low[columns] = (0.0 - mean[columns]) / std[columns]
+    high[columns] = (1.0 - mean[columns]) / std[columns]
+    return low, high
+
+
 def feature_mask(joints: np.ndarray | None = None, face: np.ndarray | None = None) -> np.ndarray:
     """(FEATURE_DIM,) bool: True where a corpus has real data. ``joints`` (55,) and ``face`` (52,)
     say which joints and ARKit channels it has (None: all); voice activity always comes from the

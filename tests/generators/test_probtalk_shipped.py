@@ -12,6 +12,7 @@ from convodrive.audio.source import AudioSource, DyadicAudio
 from convodrive.eval.behaviour import behaviour_figures
 from convodrive.eval.segments import load_segments
 from convodrive.generators.probtalk.generator import ProbTalkGenerator
+from convodrive.motion import representation as rep
 from convodrive.motion.clip import MotionClip
 from convodrive.motion.skeleton import JOINT_INDEX
 from tests.conftest import REPO
@@ -77,3 +78,31 @@ def test_the_chest_moves_as_slowly_as_the_corpus_s(take: MotionClip) -> None:
     spine3 = take.pose[:, JOINT_INDEX["spine3"]]
     speed = np.degrees(np.linalg.norm(np.diff(spine3, axis=0), axis=1)).mean() * 30
     assert speed < 2.0, speed
+
+
+def test_each_window_continues_from_the_face_as_it_is_shown(dialogue: DyadicAudio) -> None:
+    """The shipped refiner learned with ``refiner_shown``: a shape at rest may come out past rest,
+    which shows as rest. The next window's context is that shown face, within the shapes' [0, 1],
+    never the raw output the predictor never learned from."""
+    gen = ProbTalkGenerator()
+    low, high = rep.shape_bounds(gen.stats.mean, gen.stats.std)
+    assert gen.refiner is not None
+    refiner, run_window = gen.refiner, gen.run_window
+    raw: list[np.ndarray] = []
+    contexts: list[np.ndarray] = []
+
+    def refine(**inputs: np.ndarray) -> dict[str, np.ndarray]:
+        out = refiner(**inputs)
+        raw.append(out["refined"])
+        return out
+
+    def window(audio: np.ndarray, context: np.ndarray | None, rngs: list) -> np.ndarray:
+        if context is not None:
+            contexts.append(context)
+        return run_window(audio, context, rngs)
+
+    gen.refiner, gen.run_window = refine, window  # type: ignore[assignment,method-assign]
+    gen.generate(dialogue, seed=0)
+    assert len(contexts) >= 4
+    assert max(float((low - r).max()) for r in raw) > 0.5, "the refiner sends a resting shape past rest"
+    assert all(((c >= low) & (c <= high)).all() for c in contexts)

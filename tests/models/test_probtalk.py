@@ -647,3 +647,62 @@ def test_overlap_add_decodes_independent_tokens_without_steps_at_their_borders()
         overlap.conv.weight.copy_(torch.randn(16, 6, 1).expand(16, 6, 2 * hop))
         steady = overlap(torch.randn(1, 16, 1).expand(1, 16, 10))[..., hop:-hop]
     assert torch.allclose(steady, steady[..., :1].expand_as(steady), atol=1e-4)
+
+
+class _Fixed(torch.nn.Module):
+    """A refiner that answers with given motion, whatever it is asked."""
+
+    def __init__(self, motion: torch.Tensor) -> None:
+        super().__init__()
+        self.motion = motion
+
+    def forward(self, *_: torch.Tensor) -> torch.Tensor:
+        return self.motion
+
+
+def test_with_refiner_shown_the_losses_read_the_face_as_the_run_shows_it() -> None:
+    """``refiner_shown``: the shapes the run clips to [0, 1] are clipped in the losses too, so a
+    shape pushed past rest while the truth rests costs nothing (it shows rest), a shape ajar while
+    the truth rests costs its opening, and one held past rest while the truth moves still costs
+    (and has a gradient): the error of every other channel is as before."""
+    from convodrive.training.recipes.probtalk_losses import refiner_loss
+
+    rng = np.random.default_rng(0)
+    mean, std = rng.uniform(0.05, 0.2, DIM).astype(np.float32), rng.uniform(0.1, 0.3, DIM).astype(np.float32)
+    model = ProbTalk(
+        dataclasses.replace(TINY, refiner_noise=0.0, refiner_loss="l2", refiner_fd=0.1, refiner_shown=True),
+        DIM,
+        BANDS,
+        SPEAKERS,
+    ).eval()
+    model.set_shown_range(mean, std)
+    raw = rng.normal(0.3, 0.6, (2, 16, DIM)).astype(np.float32)  # arkit values beyond both of [0, 1]
+    shown = rep.encode(rep.decode(raw[0] * std + mean).pose, rep.decode(raw[0] * std + mean).face, np.zeros((16, 2)))
+    low, high = model.shown_low.numpy(), model.shown_high.numpy()
+    arkit = rep.PARTS["arkit"]
+    assert np.allclose(np.clip(raw[0], low, high)[:, arkit], ((shown - mean) / std)[:, arkit], atol=1e-5)
+    assert np.isinf(low[: arkit.start]).all() and np.isinf(high[arkit.stop :]).all()
+
+    rest, shape = float(low[arkit.start + 5]), arkit.start + 5
+    truth = torch.zeros(1, 16, DIM)
+    truth[..., shape] = rest
+    truth[:, 8:, shape] = rest + 2.0  # the truth moves in the last eight frames
+    x = {"motion": truth, "mask": torch.ones(1, 1, DIM), "audio": torch.zeros(1, 16, 2, BANDS),
+         "speaker": torch.zeros(1, dtype=torch.long)}  # fmt: skip
+    known = torch.zeros(1, 16, 1)
+
+    def error(offset_resting: float, offset_moving: float, shown: bool) -> float:
+        made = truth.clone()
+        made[:, :8, shape] += offset_resting
+        made[:, 8:, shape] += offset_moving
+        model.config = dataclasses.replace(model.config, refiner_shown=shown)
+        model.refiner = _Fixed(made)
+        figures = refiner_loss(model, x, known, torch.Generator().manual_seed(0))[1]
+        return float(figures["l2"]), float(figures["face_fd"])
+
+    assert error(-1.0, 0.0, shown=True)[0] == 0.0 < error(-1.0, 0.0, shown=False)[0]  # past rest: shows rest
+    assert error(-1.0, 0.0, shown=True)[1] == pytest.approx(error(0.0, 0.0, shown=True)[1], abs=1e-6)  # its spread too
+    assert error(-1.0, 0.0, shown=False)[1] > error(0.0, 0.0, shown=False)[1] + 0.1
+    assert error(0.5, 0.0, shown=True) == pytest.approx(error(0.5, 0.0, shown=False))  # ajar: costs alike
+    held_under = error(0.0, -2.5, shown=True)[0]  # held under rest while the truth moves
+    assert held_under > 0 and held_under == pytest.approx(error(0.0, -2.5, shown=False)[0])

@@ -8,9 +8,12 @@ Each window of audio becomes motion in four graph calls and a NumPy loop:
    sampling loop between passes is ``convodrive.neural.maskgit`` (NumPy);
 3. ``vq_decoder``: codes -> coarse motion; the known frames are copied in;
 4. ``refiner`` (with ``refine``, the default): coarse motion + audio + known mask -> the window's
-   motion; the body is then low-passed (``smooth``, the base class's) since the PQ-VAE's decoder
-   shivers. The shipped refiner learned with squared error (``refiner_loss``); an L1 one flattens
-   the mouth's brief shapes, and with it ``refine=false`` scores better (see the model card).
+   motion, its face's shapes clipped to [0, 1] as the run shows them (a refiner trained with
+   ``refiner_shown`` sends a shape at rest past it, and the next window's context must be motion
+   the predictor learned from); the body is then low-passed (``smooth``, the base class's) since
+   the PQ-VAE's decoder shivers. The shipped refiner learned with squared error
+   (``refiner_loss``); an L1 one flattens the mouth's brief shapes, and with it ``refine=false``
+   scores better (see the model card).
 
 K takes (``--samples K``) are the batch of the same calls. With ``face_temperature`` (default on)
 the memory and MaskGIT passes run for 2K rows: each take's body comes from its draw at
@@ -130,6 +133,8 @@ class ProbTalkGenerator(LearnedGenerator):
         self.step = self.graph("predictor_step")
         self.decoder = self.graph("vq_decoder")
         self.refiner = self.graph("refiner") if self.refine else None
+        self.shown = rep.shape_bounds(self.stats.mean, self.stats.std)
+        """The run shows the face's shapes clipped to these; the next window continues from them."""
         self.windows = 0
 
     def window_plan(self) -> WindowPlan:
@@ -173,7 +178,7 @@ class ProbTalkGenerator(LearnedGenerator):
         if self.refiner is not None:
             motion = self.refiner(motion=motion, audio=heard, known_mask=known_mask, speaker=speaker)["refined"]
         self.windows += 1
-        return motion[:, :window]
+        return np.clip(motion[:, :window], *self.shown)
 
     def report(self) -> dict[str, Any]:
         return {

@@ -203,6 +203,8 @@ class ProbTalkRecipe(StagedRecipe):
             load_exported_decoder(model.config.vq_decoder_from, model.vq, spec.arrays)
         if stage == "refiner" and model.config.refiner_teacher:
             check_teacher(model.config.refiner_teacher, spec.arrays, spec.info["speakers"])
+        if model.config.refiner_shown:
+            model.set_shown_range(spec.arrays["mean"], spec.arrays["std"])
 
     def inherited(self, model: torch.nn.Module) -> tuple[str, ...]:
         assert isinstance(model, ProbTalk)

@@ -148,27 +148,42 @@ def refiner_loss(
         target = taught_target(
             config.refiner_teacher, groups, combined, batch["audio"], known, batch["speaker"], motion
         )
+    shown, scored = refined, refined
+    if config.refiner_shown:
+        shown, scored = shown_motion(refined, target, model.shown_low, model.shown_high)
     weight = part_weights(config, mask.device)
     counted = mask if weight is None else mask * weight
     free = counted * (1 - known)
     name = config.refiner_loss
     error = MASKED_ERRORS[name]
-    rec = error(refined, target, free)
-    vel = error(refined.diff(dim=1), target.diff(dim=1), counted)
+    rec = error(scored, target, free)
+    vel = error(scored.diff(dim=1), target.diff(dim=1), counted)
     coarse = error(combined, motion, free)
     loss, figures = (
         rec + config.velocity_weight * vel,
         {name: rec.detach(), "velocity": vel.detach(), f"coarse_{name}": coarse},
     )
     for group in config.refiner_fd_groups if config.refiner_fd > 0 else ():
-        distance = group_frechet(refined, motion, mask, known, group, config.refiner_fd_by_voice)
+        distance = group_frechet(shown, motion, mask, known, group, config.refiner_fd_by_voice)
         loss = loss + config.refiner_fd * distance
         figures[f"{group}_fd"] = distance.detach()
     if config.refiner_shut > 0:
-        ajar = shut_mouth_error(refined, motion, mask, known)
+        ajar = shut_mouth_error(shown, motion, mask, known)
         loss = loss + config.refiner_shut * ajar
         figures["shut"] = ajar.detach()
     return loss, figures
+
+
+def shown_motion(
+    refined: torch.Tensor, target: torch.Tensor, low: torch.Tensor, high: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The refined motion as the run shows it (clipped to ``low``..``high``), and as its error
+    reads it: clipped where the target sits at a bound, so that going past rest costs nothing
+    when the truth rests, and unclipped elsewhere, so that a shape held under rest while the
+    truth moves still has a gradient."""
+    shown = torch.maximum(torch.minimum(refined, high), low)
+    at_bound = (target <= low + 1e-3) | (target >= high - 1e-3)
+    return shown, torch.where(at_bound, shown, refined)
 
 
 def self_speaks(motion: torch.Tensor) -> torch.Tensor:
