@@ -665,17 +665,19 @@ def test_with_refiner_shown_the_losses_read_the_face_as_the_run_shows_it() -> No
     shape pushed past rest while the truth rests costs nothing (it shows rest), a shape ajar while
     the truth rests costs its opening, and one held past rest while the truth moves still costs
     (and has a gradient): the error of every other channel is as before."""
+    from convodrive.training.recipe import DataSpec
+    from convodrive.training.recipes.probtalk import ProbTalkRecipe
     from convodrive.training.recipes.probtalk_losses import refiner_loss
 
     rng = np.random.default_rng(0)
     mean, std = rng.uniform(0.05, 0.2, DIM).astype(np.float32), rng.uniform(0.1, 0.3, DIM).astype(np.float32)
-    model = ProbTalk(
-        dataclasses.replace(TINY, refiner_noise=0.0, refiner_loss="l2", refiner_fd=0.1, refiner_shown=True),
-        DIM,
-        BANDS,
-        SPEAKERS,
-    ).eval()
-    model.set_shown_range(mean, std)
+    spec = DataSpec(
+        {"corpus": {"audio_features": {"bands": BANDS}}, "speakers": ["a", "b", "c"]},
+        {"mean": mean, "std": std, "audio_mean": np.zeros(BANDS, np.float32), "audio_std": np.ones(BANDS, np.float32)},
+    )
+    config = dataclasses.replace(TINY, refiner_noise=0.0, refiner_loss="l2", refiner_fd=0.1, refiner_shown=True)
+    model = ProbTalkRecipe().build_model(config, spec, "refiner").eval()  # as a new or a resumed run builds it
+    assert isinstance(model, ProbTalk)
     raw = rng.normal(0.3, 0.6, (2, 16, DIM)).astype(np.float32)  # arkit values beyond both of [0, 1]
     shown = rep.encode(rep.decode(raw[0] * std + mean).pose, rep.decode(raw[0] * std + mean).face, np.zeros((16, 2)))
     low, high = model.shown_low.numpy(), model.shown_high.numpy()

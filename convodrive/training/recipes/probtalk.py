@@ -196,6 +196,14 @@ class ProbTalkRecipe(StagedRecipe):
     def network(self, config: ProbTalkConfig, bands: int, speakers: int, stage: str) -> torch.nn.Module:
         return ProbTalk(config, rep.FEATURE_DIM, bands, speakers, stage)
 
+    def build_model(self, config: ProbTalkConfig, spec: DataSpec, stage: str) -> torch.nn.Module:
+        """The network with the data's statistics, the face's shown range too (``refiner_shown``):
+        built so for a new run and a resumed one alike, which skips ``initialise``."""
+        model = super().build_model(config, spec, stage)
+        assert isinstance(model, ProbTalk)
+        model.set_shown_range(spec.arrays["mean"], spec.arrays["std"])
+        return model
+
     def initialise(self, model: torch.nn.Module, start: StartingPoint | None, spec: DataSpec, stage: str) -> None:
         super().initialise(model, start, spec, stage)
         assert isinstance(model, ProbTalk)
@@ -203,8 +211,6 @@ class ProbTalkRecipe(StagedRecipe):
             load_exported_decoder(model.config.vq_decoder_from, model.vq, spec.arrays)
         if stage == "refiner" and model.config.refiner_teacher:
             check_teacher(model.config.refiner_teacher, spec.arrays, spec.info["speakers"])
-        if model.config.refiner_shown:
-            model.set_shown_range(spec.arrays["mean"], spec.arrays["std"])
 
     def inherited(self, model: torch.nn.Module) -> tuple[str, ...]:
         assert isinstance(model, ProbTalk)
