@@ -14,9 +14,11 @@
 #      graph is kept, so this one is never used;
 #   3. the refiner stage (3000 steps) with refiner_fd 0.1 (the face's Fréchet distance over each
 #      batch), refiner_shut 2.0 (no jaw opened past the truth in self's silence), refiner_shown
-#      (the losses read the face's shapes clipped to [0, 1], as the run shows them) and
-#      refiner_teacher (the body's target is the shipped refiner's output, not the truth: the
-#      face's terms would otherwise take what the old refiner did for the body);
+#      (the losses read the face's shapes clipped to [0, 1], as the run shows them),
+#      refiner_teacher (the body's target, the spine's aside, is the teacher refiner's output, not
+#      the truth: the face's terms would otherwise take what the old refiner did for the body),
+#      and the spine's Fréchet distance beside the face's, both taken relative to each speaker's
+#      mean (refiner_fd_by_speaker; the spine's target is the truth: the codes leave it at its mean);
 #   4. `convodrive export --int8 --onto MODEL --graphs refiner` beside the shipped folder (the
 #      refiner's motion projection stays float), and the test split scored against the shipped
 #      weights.
@@ -25,7 +27,7 @@
 # CORPUS_DIR holds one (scripts/train_corpus.sh, REAL_VOICES=1 by default: the shipped weights'
 # corpus). THREADS: torch's CPU threads (default: the machine's cores). TEACHER: the model folder
 # whose refiner teaches the body (default: the shipped folder). The shipped refiner was taught by
-# the folder at commit d69c14e (two refiners back); to remake it, take that folder from git first:
+# the folder at commit d69c14e (three refiners back); to remake it, take that folder from git first:
 #   mkdir -p old && git archive d69c14e convodrive/generators/probtalk/model | tar -x -C old
 #   TEACHER=old/convodrive/generators/probtalk/model SHIP=1 scripts/retrain_probtalk_refiner.sh
 set -euo pipefail
@@ -43,7 +45,9 @@ source scripts/probtalk_stage.sh  # train STAGE STEPS [ARGS...]
 train vq 2000 --set "vq_decoder_from=$model"
 train predictor 1 --set warmup_steps=0 --init "$runs/vq"
 train refiner 3000 --init "$runs/predictor" \
-    --set refiner_fd=0.1 --set refiner_shut=2.0 --set refiner_shown=true --set "refiner_teacher=$teacher"
+    --set refiner_fd=0.1 --set refiner_shut=2.0 --set refiner_shown=true --set "refiner_teacher=$teacher" \
+    --set 'refiner_fd_groups=["face","spine"]' --set refiner_fd_by_speaker=true \
+    --set 'refiner_teacher_groups=["body_but_spine"]'
 
 rm -rf "$runs/grafted"
 "$bin/convodrive" export "$runs/refiner" --int8 --onto "$model" --graphs refiner --out "$runs/grafted"

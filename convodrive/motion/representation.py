@@ -100,6 +100,10 @@ GROUPS: dict[str, slice] = {
     "vad": PARTS["vad"],
 }
 """The face (jaw, eyes, ARKit), the body (head, upper body, hands) and voice activity."""
+SPINE: slice = slice(
+    PARTS["upper"].start, PARTS["upper"].start + SIXD * sum(j.startswith("spine") for j in PART_JOINTS["upper"])
+)
+"""spine1..3's 6D blocks, the first columns of the upper body: the torso's posture and breath."""
 FEATURE_DIM: int = PARTS["vad"].stop
 ROTATION_PARTS = ("jaw", "eyes", "head", "upper", "hands")
 COVERED_JOINTS: tuple[str, ...] = tuple(j for p in ROTATION_PARTS for j in PART_JOINTS[p])

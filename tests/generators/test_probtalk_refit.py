@@ -119,6 +119,7 @@ def test_a_teacher_s_refiner_gives_the_body_s_target(
     """With ``refiner_teacher``, the body's target in the free frames is the folder's refiner's
     output on the same input; the face's and every known frame's stay the truth. A student taught
     so lands nearer the teacher's body than one taught by the truth from the same start."""
+    from convodrive.models.probtalk_config import REFINER_GROUPS
     from convodrive.neural.folder import load_model_folder
     from convodrive.neural.session import Graph
     from convodrive.training.recipes.probtalk_teacher import taught_target
@@ -139,6 +140,10 @@ def test_a_teacher_s_refiner_gives_the_body_s_target(
     assert np.array_equal(target[:, :8], motion.numpy()[:, :8]) and np.array_equal(
         target[..., face], motion.numpy()[..., face]
     )
+    rest = taught_target(str(model), ("body_but_spine",), combined, audio, known, speaker, motion).numpy()
+    spine, others = REFINER_GROUPS["spine"], REFINER_GROUPS["body_but_spine"]
+    assert np.array_equal(rest[..., spine], motion.numpy()[..., spine]), "the spine keeps the truth"
+    assert np.array_equal(rest[:, 8:, others], refined["refined"][:, 8:, others])
 
     start = probtalk_stages["predictor"]
     taught = _train(tiny_corpus, "refiner", tmp_path / "taught", start, seed=1, refiner_teacher=str(model))

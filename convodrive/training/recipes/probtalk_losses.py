@@ -14,7 +14,7 @@ import torch.nn.functional as F
 from convodrive.eval.distribution import fd_g
 from convodrive.models.common import MASKED_ERRORS, frechet_loss
 from convodrive.models.probtalk import ProbTalk
-from convodrive.models.probtalk_config import ProbTalkConfig
+from convodrive.models.probtalk_config import REFINER_GROUPS, ProbTalkConfig
 from convodrive.motion import representation as rep
 from convodrive.motion.channels import ARKIT_NAMES
 from convodrive.training.recipe import Batch
@@ -22,7 +22,7 @@ from convodrive.training.recipes.probtalk_teacher import taught_target
 
 EYELIDS = ("eyeBlinkLeft", "eyeBlinkRight")
 """The ARKit channels ``eyelid_part`` weighs as a part of their own."""
-SPINE_CHANNELS = rep.SIXD * sum(joint.startswith("spine") for joint in rep.PART_JOINTS["upper"])
+SPINE_CHANNELS = rep.SPINE.stop - rep.SPINE.start
 """spine1..3's 6D blocks, the first channels of the upper body: ``spine_part`` weighs them as a part."""
 
 
@@ -164,7 +164,8 @@ def refiner_loss(
         {name: rec.detach(), "velocity": vel.detach(), f"coarse_{name}": coarse},
     )
     for group in config.refiner_fd_groups if config.refiner_fd > 0 else ():
-        distance = group_frechet(shown, motion, mask, known, group, config.refiner_fd_by_voice)
+        speakers = batch["speaker"] if config.refiner_fd_by_speaker else None
+        distance = group_frechet(shown, motion, mask, known, group, config.refiner_fd_by_voice, speakers)
         loss = loss + config.refiner_fd * distance
         figures[f"{group}_fd"] = distance.detach()
     if config.refiner_shut > 0:
@@ -215,8 +216,9 @@ def group_frechet(
     known: torch.Tensor,
     group: str,
     by_voice: bool = False,
+    speakers: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """FD_g + FD_k of one group (``face`` or ``body``, as ``eval compare`` scores them) over the
+    """FD_g + FD_k of one group (``REFINER_GROUPS``; ``face`` and ``body`` as ``eval compare`` scores them) over the
     batch's refined frames against the true ones: the frames (and frame pairs, for the velocities)
     no known context fixes, the group's channels every window has. The velocities are divided by
     the true ones' RMS over the group: normalised poses have about unit spread, their
@@ -224,11 +226,15 @@ def group_frechet(
     that rest through a batch would count thousands of times over). ``by_voice``: the sum of the
     distances over the frames where self speaks and over those where self is silent (self's voice
     activity above or below its mean, 0 normalised), so that spread missing while speaking is not
-    made up with a mouth that moves in silence."""
-    columns = torch.arange(rep.GROUPS[group].start, rep.GROUPS[group].stop, device=mask.device)
+    made up with a mouth that moves in silence. ``speakers`` (B,): the poses are taken relative to
+    their speaker's true mean over the batch, made and true alike, so the distance asks for each
+    style's own level and the spread within it, not the styles' pooled spread."""
+    columns = torch.from_numpy(REFINER_GROUPS[group]).to(mask.device)
     columns = columns[mask.amin(dim=0).flatten()[columns] > 0]
     made, real = refined[..., columns], motion[..., columns]
     made_moves, real_moves = made.diff(dim=1), real.diff(dim=1)
+    if speakers is not None:
+        made, real = relative_to_speaker(made, real, speakers, known[..., 0] == 0)
     spread = real_moves.square().mean().sqrt().clamp(min=1e-3).detach()  # velocities in their own units
     free = known[..., 0] == 0
     subsets = [free]
@@ -243,3 +249,17 @@ def group_frechet(
         distance = distance + frechet_loss(made[rows], real[rows])
         distance = distance + frechet_loss(made_moves[pairs] / spread, real_moves[pairs] / spread)
     return distance
+
+
+def relative_to_speaker(
+    made: torch.Tensor, real: torch.Tensor, speakers: torch.Tensor, free: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``made`` and ``real`` (B, T, C) less the mean of ``real`` over the ``free`` (B, T) frames of
+    the windows of each one's speaker (B,)."""
+    offset = torch.zeros_like(real[:, :1])
+    for speaker in speakers.unique():
+        windows = speakers == speaker
+        rows = free[windows]
+        if int(rows.sum()):
+            offset[windows] = real[windows][rows].mean(0).detach()
+    return made - offset, real - offset

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from convodrive.motion import representation as rep
+from convodrive.models.probtalk_config import REFINER_GROUPS
 from convodrive.neural.folder import load_model_folder
 from convodrive.neural.session import Graph, SessionOptions
 from convodrive.plumbing.errors import UserError
@@ -62,6 +62,6 @@ def taught_target(
     target = motion.clone()
     free = known == 0
     for group in groups:
-        span = rep.GROUPS[group]
-        target[..., span] = torch.where(free, taught[..., span], motion[..., span])
+        columns = torch.from_numpy(REFINER_GROUPS[group]).to(motion.device)
+        target[..., columns] = torch.where(free, taught[..., columns], motion[..., columns])
     return target
