@@ -39,7 +39,7 @@ def part_weights(config: ProbTalkConfig, device: torch.device | str = "cpu") -> 
     if config.eyelid_part:
         own.append(rep.PARTS["arkit"].start + np.array([ARKIT_NAMES.index(n) for n in EYELIDS]))
     if config.spine_part:
-        own.append(rep.PARTS["upper"].start + np.arange(SPINE_CHANNELS))
+        own.append(REFINER_GROUPS["spine"])
     for columns in own:
         parts = [np.setdiff1d(p, columns) for p in parts] + [columns]
     weight = np.ones(rep.FEATURE_DIM)
@@ -163,8 +163,8 @@ def refiner_loss(
         rec + config.velocity_weight * vel,
         {name: rec.detach(), "velocity": vel.detach(), f"coarse_{name}": coarse},
     )
+    speakers = batch["speaker"] if config.refiner_fd_by_speaker else None
     for group in config.refiner_fd_groups if config.refiner_fd > 0 else ():
-        speakers = batch["speaker"] if config.refiner_fd_by_speaker else None
         distance = group_frechet(shown, motion, mask, known, group, config.refiner_fd_by_voice, speakers)
         loss = loss + config.refiner_fd * distance
         figures[f"{group}_fd"] = distance.detach()
@@ -233,10 +233,10 @@ def group_frechet(
     columns = columns[mask.amin(dim=0).flatten()[columns] > 0]
     made, real = refined[..., columns], motion[..., columns]
     made_moves, real_moves = made.diff(dim=1), real.diff(dim=1)
-    if speakers is not None:
-        made, real = relative_to_speaker(made, real, speakers, known[..., 0] == 0)
-    spread = real_moves.square().mean().sqrt().clamp(min=1e-3).detach()  # velocities in their own units
     free = known[..., 0] == 0
+    if speakers is not None:
+        made, real = relative_to_speaker(made, real, speakers, free)
+    spread = real_moves.square().mean().sqrt().clamp(min=1e-3).detach()  # velocities in their own units
     subsets = [free]
     if by_voice:
         speaking = self_speaks(motion)
