@@ -13,6 +13,8 @@ so a model is sampled on the schedule it learned. The loops:
   x0; with more than one step, x0 is noised again to the next (lower) step with fresh noise.
 - ``guided``: classifier-free guidance with the conditional and unconditional passes as one
   batch (the first half conditional), combined as ``uncond + scale * (cond - uncond)`` on x0.
+- ``scaled_by_input``: a guidance-distilled model, whose scale is an input, at one scale a
+  channel: one pass a distinct scale, as one batch.
 
 All loops pin known frames (the previous window's last frames): every x0 gets them copied in, so
 a window continues its predecessor exactly (continuation by inpainting; the networks also see
@@ -112,6 +114,28 @@ def guided(x0_fn: X0Fn, scale: float | np.ndarray) -> X0Fn:
         both = x0_fn(np.concatenate([x, x]), np.concatenate([steps, steps]))
         cond, uncond = both[: len(x)], both[len(x) :]
         return uncond + scale * (cond - uncond)
+
+    return fn
+
+
+ScaledX0Fn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+"""x0 of a model that takes its guidance scale as an input: (x, steps, scale a row)."""
+
+
+def scaled_by_input(x0_fn: ScaledX0Fn, scale: float | np.ndarray) -> X0Fn:
+    """x0 at one guidance scale a channel (or one for all) from a model that learned the scale as an
+    input: the rows go once for each distinct scale in one call (copy k at the k-th smallest), and
+    each channel is read from its own scale's copy."""
+    levels, level_of_channel = np.unique(np.atleast_1d(np.asarray(scale, np.float32)), return_inverse=True)
+
+    def fn(x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        rows = len(x)
+        out = x0_fn(np.concatenate([x] * len(levels)), np.concatenate([steps] * len(levels)), np.repeat(levels, rows))
+        if len(levels) == 1:
+            return out
+        copies = out.reshape(len(levels), rows, *out.shape[1:])
+        channels = np.arange(out.shape[-1])
+        return np.moveaxis(copies[level_of_channel, ..., channels], 0, -1)
 
     return fn
 

@@ -1,11 +1,13 @@
 """The a2p generator on a model folder of the tiny preset (fresh weights: these are contracts of
 the runtime, which hold whatever the weights): streaming equals offline; K takes in one batch
 equal K single takes; each window continues from its context; the guide carries across windows
-and streams never share it; live mode keeps its look-ahead; options and mistakes are one line;
+and streams never share it; live mode keeps its look-ahead; each guidance scale reaches its own channels (the head, the
+gaze, the lids), the students' by a pass a scale; options and mistakes are one line;
 the shipped weights drive a run that loads no torch. (Constant memory: test_learned_memory.py.)"""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
 import subprocess
@@ -24,7 +26,15 @@ from tests.corpora import dyadic_audio
 pytestmark = [require("torch"), require("onnxruntime"), pytest.mark.timeout(900)]
 """The first test also pays for the session's model folder: twelve graphs exported, each checked for parity."""
 
-from convodrive.generators.a2p.generator import BODY, FACE, GUIDE_TEMPERATURE, HEAD, A2PGenerator  # noqa: E402
+from convodrive.generators.a2p.generator import BODY, FACE, GUIDE_TEMPERATURE, A2PGenerator  # noqa: E402
+from convodrive.generators.a2p.guidance import (  # noqa: E402
+    GAZE,
+    GUIDANCE_EYES,
+    GUIDANCE_FACE,
+    HEAD,
+    LIDS,
+    STUDENT_GUIDANCE_LIDS,
+)
 
 
 @pytest.fixture
@@ -186,14 +196,43 @@ def test_the_teachers_guide_the_head_harder_than_the_rest_of_the_body(model: Pat
     assert np.abs(default[first:, rest] - uniform[first:, rest]).max() > 1e-4
 
 
+def test_the_teachers_guide_the_eyes_by_their_own_scale(model: Path) -> None:
+    """The gaze and the lids take their own guidance scale (``GUIDANCE_EYES`` by default), the rest
+    of the face the face's: in one DDIM step only the eyes' channels change with it (in the first
+    window), and each group only with its own."""
+    audio = dyadic_audio(2.5)
+    one_step = {"model": str(model), "sampler": "ddim", "face_steps": 1, "steps": 1}
+    plan = A2PGenerator(one_step).report()["guidance"]
+    assert plan["gaze"] == plan["lids"] == GUIDANCE_EYES != GUIDANCE_FACE == plan["face"]
+    first = A2PGenerator(one_step).report()["window"] - A2PGenerator(one_step).report()["context"]
+
+    def face(options: dict) -> np.ndarray:
+        return rep.encode_clip(A2PGenerator({**one_step, **options}).generate(audio)[0])[:first, FACE]
+
+    default = face({})
+    np.testing.assert_array_equal(default, face({"guidance_gaze": GUIDANCE_EYES, "guidance_lids": GUIDANCE_EYES}))
+    uniform = face({"guidance_gaze": GUIDANCE_FACE, "guidance_lids": GUIDANCE_FACE})
+    gaze_only = face({"guidance_lids": GUIDANCE_FACE})
+    gaze, lids = GAZE - FACE.start, LIDS - FACE.start
+    assert np.abs(default[:, gaze] - uniform[:, gaze]).max() > 1e-4
+    assert np.abs(default[:, lids] - uniform[:, lids]).max() > 1e-4
+    rest = np.ones(default.shape[1], bool)
+    rest[np.concatenate([gaze, lids])] = False
+    np.testing.assert_allclose(default[:, rest], uniform[:, rest], atol=1e-5)
+    np.testing.assert_allclose(gaze_only[:, gaze], default[:, gaze], atol=1e-5)
+    np.testing.assert_allclose(gaze_only[:, lids], uniform[:, lids], atol=1e-5)
+
+
 def test_ddim_is_the_default_and_its_face_takes_more_steps_than_its_body(model: Path) -> None:
     """The face improves with every DDIM step up to 50 where the body stops at 10 (see
     ``DDIM_FACE_STEPS``); live mode keeps the face at 20 for its latency."""
     file = A2PGenerator({"model": str(model)}).report()
     assert (file["sampler"], file["steps"], file["face_steps"]) == ("ddim", 10, 50)
-    assert file["guidance"] == {"face": 1.5, "body": 2.0, "head": 4.0} and file["body_guidance_on"] == "audio"
+    assert file["guidance"] == {"face": 1.5, "gaze": GUIDANCE_EYES, "lids": GUIDANCE_EYES, "body": 2.0, "head": 4.0}
+    assert file["body_guidance_on"] == "audio"
     students = A2PGenerator({"model": str(model), "sampler": "distilled"}).report()
-    assert students["guidance"] == {"face": 1.5, "body": 1.0, "head": 1.0} and students["body_guidance_on"] == "all"
+    assert students["guidance"] == {"face": 1.5, "gaze": 1.5, "lids": 1.5, "body": 1.0, "head": 1.0}  # consistency
+    assert students["body_guidance_on"] == "all"
     assert A2PGenerator({"model": str(model), "mode": "live"}).report()["face_steps"] == 20
     dpm = A2PGenerator({"model": str(model), "sampler": "dpm"}).report()
     assert (dpm["steps"], dpm["face_steps"], dpm["guidance"]["body"], dpm["guidance"]["head"]) == (4, 8, 2.0, 4.0)
@@ -261,6 +300,55 @@ def test_guidance_distilled_students_are_sampled_as_the_teachers_are(model: Path
     assert np.abs(two.pose - guidance.pose).max() > 1e-5
     # The consistency grid's limit does not bind them: the teachers' schedule does.
     assert A2PGenerator({**students, "steps": 20}).report()["steps"] == 20
+
+
+def test_guidance_distilled_students_take_the_lids_scale_by_a_second_pass(model: Path, tmp_path: Path) -> None:
+    """Guidance-distilled students learned one face scale, an input: the lids' own scale
+    (``STUDENT_GUIDANCE_LIDS`` by default; their gaze keeps the face's) is a second pass of the face
+    in the same call. In one face step (the first window) the lids are what the student gives at
+    the lids' scale everywhere, the rest of the face what it gives at the face's. Consistency
+    students learned no scale: the lids keep the face's."""
+    own = _students_that_hear_their_scale(model, tmp_path / "guidance")
+    one = {"model": str(own), "sampler": "distilled", "steps": 1, "face_steps": 1}
+    plan = A2PGenerator(one).report()
+    assert plan["guidance"]["lids"] == STUDENT_GUIDANCE_LIDS and plan["guidance"]["gaze"] == plan["guidance"]["face"]
+    first = plan["window"] - plan["context"]
+    audio = dyadic_audio(2.5)
+
+    def face(face: float, lids: float) -> np.ndarray:
+        options = {**one, "guidance_face": face, "guidance_gaze": face, "guidance_lids": lids}
+        return rep.encode_clip(A2PGenerator(options).generate(audio)[0])[:first, FACE]
+
+    both, at_face, at_lids = face(1.5, 3.0), face(1.5, 1.5), face(3.0, 3.0)
+    lids = LIDS - FACE.start
+    rest = np.ones(both.shape[1], bool)
+    rest[lids] = False
+    np.testing.assert_allclose(both[:, lids], at_lids[:, lids], atol=1e-5)
+    np.testing.assert_allclose(both[:, rest], at_face[:, rest], atol=1e-5)
+    assert np.abs(at_lids[:, lids] - at_face[:, lids]).max() > 1e-4
+    consistency = A2PGenerator({"model": str(model), "sampler": "distilled", "guidance_lids": 3.0}).report()
+    assert consistency["guidance"]["lids"] == consistency["guidance"]["face"]
+
+
+def _students_that_hear_their_scale(model: Path, folder: Path) -> Path:
+    """A copy of ``model`` whose face student learned by guidance distillation and hears its scale:
+    a fresh student's scale embedding starts at zero, so it is drawn here (and the file's hash
+    recomputed)."""
+    import onnx
+    from onnx import numpy_helper
+
+    shutil.copytree(model, folder)
+    meta = json.loads((folder / "model.json").read_text())
+    meta["architecture"].update(distillation="guidance")
+    graph = folder / meta["graphs"]["face_student_step"]["file"]
+    proto = onnx.load(str(graph))
+    (weight,) = [w for w in proto.graph.initializer if w.name.endswith("guidance.weight")]
+    drawn = np.random.default_rng(0).normal(0.0, 0.5, numpy_helper.to_array(weight).shape).astype(np.float32)
+    weight.CopyFrom(numpy_helper.from_array(drawn, weight.name))
+    onnx.save(proto, str(graph))
+    meta["files"][graph.name] = hashlib.sha256(graph.read_bytes()).hexdigest()
+    (folder / "model.json").write_text(json.dumps(meta))
+    return folder
 
 
 def test_bad_options_and_folders_are_one_line(model: Path, tmp_path: Path) -> None:

@@ -1,5 +1,5 @@
 """Diffusion sampling in NumPy: the cosine schedule, step spacing, DDIM that recovers x0 when the
-network knows it, DPM-Solver++ nearer the ODE's own answer than DDIM in as many steps, stochastic DDIM (eta) on the forward process's marginals, guidance as one batch, pinned known frames, takes independent of the batch."""
+network knows it, DPM-Solver++ nearer the ODE's own answer than DDIM in as many steps, stochastic DDIM (eta) on the forward process's marginals, guidance as one batch, a scale a channel from a model that takes it as an input, pinned known frames, takes independent of the batch."""
 
 from __future__ import annotations
 
@@ -19,6 +19,7 @@ from convodrive.neural.diffusion import (
     log_snr,
     log_snr_timesteps,
     noised,
+    scaled_by_input,
     stochastic_ddim_step,
 )
 
@@ -142,6 +143,24 @@ def test_guidance_batches_both_halves_in_one_call() -> None:
     got = guided(x0_fn, 2.5)(np.zeros((4, 2, 1), np.float32), np.zeros(4, np.int64))
     assert calls == [8]
     np.testing.assert_allclose(got, 1.0 + 2.5 * (3.0 - 1.0))
+
+
+def test_a_scale_a_channel_is_one_pass_a_distinct_scale_in_one_call() -> None:
+    """A model that takes its guidance as an input answers each channel at that channel's scale:
+    one call, the rows repeated once for each distinct scale; one scale for all is one plain pass."""
+    calls = []
+
+    def x0_fn(x: np.ndarray, t: np.ndarray, scale: np.ndarray) -> np.ndarray:
+        calls.append(scale.copy())
+        return x + scale[:, None, None]
+
+    x = np.arange(12, dtype=np.float32).reshape(2, 2, 3)
+    got = scaled_by_input(x0_fn, np.array([1.5, 2.5, 1.5], np.float32))(x, np.zeros(2, np.int64))
+    np.testing.assert_array_equal(calls[0], [1.5, 1.5, 2.5, 2.5])
+    np.testing.assert_array_equal(got, x + np.array([1.5, 2.5, 1.5], np.float32))
+    calls.clear()
+    np.testing.assert_array_equal(scaled_by_input(x0_fn, 2.0)(x, np.zeros(2, np.int64)), x + 2.0)
+    np.testing.assert_array_equal(calls[0], [2.0, 2.0])
 
 
 def test_known_frames_are_pinned() -> None:

@@ -31,6 +31,15 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from convodrive.generators.a2p.guidance import (
+    DDIM_GUIDANCE_BODY,
+    DDIM_GUIDANCE_HEAD,
+    GUIDANCE_EYES,
+    GUIDANCE_FACE,
+    STUDENT_GUIDANCE_BODY,
+    STUDENT_GUIDANCE_LIDS,
+    Guidance,
+)
 from convodrive.generators.a2p.guide import GuidePoses, GuideState
 from convodrive.generators.learned import LearnedGenerator, LearnedOptions
 from convodrive.motion import representation as rep
@@ -43,6 +52,7 @@ from convodrive.neural.diffusion import (
     guided,
     log_snr_timesteps,
     noise_like,
+    scaled_by_input,
 )
 from convodrive.neural.windows import WindowPlan
 from convodrive.plugins.options import option
@@ -54,25 +64,10 @@ FILE_CONTEXT = 30
 DISTILLED_STEPS = 4
 DDIM_STEPS = 10
 """The body's DDIM steps: 20 moved its scores on the test split within the draws' noise."""
-DDIM_GUIDANCE_BODY, DDIM_GUIDANCE_HEAD = 2.0, 4.0
-"""The teachers' body guidance, on the audio alone, by channel: 4 on the head and neck, 2 on the
-rest. On the test split (7 x 4, seeds 0 / 1) FD_g body is 7.70 / 7.61 against 8.33 at 3 throughout
-(ground-truth takes 5.11), the head moving 1.91 times as fast while talking as while listening
-(1.89 at 3). At 2 throughout FD_g body is 7.65 but the head's ratio falls to 1.73 (on the bundled
-dialogue 1.83, where the tests ask 1.9); at 2.5, 7.87.
-Guiding on the guide poses too, as the paper does, doubled FD_g body at a scale of 2."""
-STUDENT_GUIDANCE_BODY = 3.0
-"""The guidance-distilled students' body guidance: they learned one scale for every channel, and
-at 2 their head moves 1.57 times as fast while talking as while listening (1.64 at 3)."""
 DDIM_FACE_STEPS = {"file": 50, "live": 20}
 """The face's DDIM steps by mode. The face keeps improving with steps (FD_g face on the test split
 9.6 at 1 distilled step, 6.4 at 10, 4.4 at 20, 2.9 at 50); live mode stops at 20 to keep its
 latency (look-ahead plus a window's compute) under 0.5 s on 2 cores."""
-GUIDANCE_FACE = 1.5
-"""The face's guidance. Guidance amplifies whatever the face hears, the partner's voice leaking into
-self's microphone too: with -12 dB of bleed on real voices (worst of 4 dialogues) the mouth stayed
-shut on 96.2 % of the frames where only the partner speaks at 2, on 98.3 % at 1.5; on the test
-split FD_g face is 1.05 at 1.5 against 0.943 at 2 (knn 1.1), lip r 0.90 either way."""
 DPM_STEPS, DPM_FACE_STEPS = 4, 8
 """DPM-Solver++(2M)'s steps of the teachers: on the test split the body's 4 (on DDIM's trailing
 steps) and the face's 8 (evenly in log-SNR, down to step 0) score FD_g 8.42 and 1.11 against
@@ -91,7 +86,6 @@ listening speed on the bundled dialogue (seeds 0 / 1; 1.94 / 2.05 at 1). The fac
 before the guide and does not change."""
 FACE = rep.GROUPS["face"]
 BODY = rep.GROUPS["body"]
-HEAD = rep.PARTS["head"]
 VAD = rep.GROUPS["vad"]
 GRAPHS = ("lip", "face_memory", "face_step", "body_memory", "body_step", "guide_audio", "guide_step", "vq_decoder")
 STUDENT_GRAPHS = ("face_student_memory", "face_student_step", "body_student_memory", "body_student_step")
@@ -129,6 +123,20 @@ class A2POptions(LearnedOptions):
     )
     guidance_face: float = option(
         GUIDANCE_FACE, low=1.0, high=20.0, help="classifier-free guidance scale of the face (1: none)"
+    )
+    guidance_gaze: float = option(
+        0.0,
+        low=0.0,
+        high=20.0,
+        help=f"the guidance of the gaze (the eyeballs and the look channels); 0: {GUIDANCE_EYES:g} with the teachers, "
+        "the face's for the students (another scale costs guidance-distilled students a pass of the face)",
+    )
+    guidance_lids: float = option(
+        0.0,
+        low=0.0,
+        high=20.0,
+        help=f"the guidance of the eyelids (blinks, squint, wide); 0: {GUIDANCE_EYES:g} with the teachers, "
+        f"{STUDENT_GUIDANCE_LIDS:g} for guidance-distilled students (a second pass of their face)",
     )
     guidance_body: float = option(
         0.0,
@@ -207,12 +215,7 @@ class A2PGenerator(LearnedGenerator):
         self.dpm_times = (
             self._dpm_times() if self.options.sampler == "dpm" or (distilled and not self.consistency) else {}
         )
-        student_guidance = 1.0 if self.consistency else STUDENT_GUIDANCE_BODY
-        self.guidance_body = self.options.guidance_body or (student_guidance if distilled else DDIM_GUIDANCE_BODY)
-        self.guidance_head = self._head_guidance()
-        self.body_scales = self._body_guidance_per_channel()
-        """The body's guidance as ``_sample`` takes it: one scale, or one a channel where the head's differs."""
-        self.body_unconditional = np.array([0.0, float(self.options.guidance_body_on == "audio")], np.float32)
+        self.guidance = Guidance.of(self.options, distilled, self.consistency)
         prefix = "_student" if distilled else ""
         self.lip = self.graph("lip")
         self.face_memory, self.face_step = self.graph(f"face{prefix}_memory"), self.graph(f"face{prefix}_step")
@@ -280,7 +283,7 @@ class A2PGenerator(LearnedGenerator):
             FACE,
             context,
             rngs,
-            self.options.guidance_face,
+            self.guidance.face_scales(),
             self.face_steps,
             np.zeros(2, np.float32),
         )
@@ -301,9 +304,9 @@ class A2PGenerator(LearnedGenerator):
             BODY,
             context,
             rngs,
-            self.body_scales,
+            self.guidance.body_scales(),
             self.steps,
-            self.body_unconditional,
+            self.guidance.body_unconditional(),
         )
         state.index += 1
         self.windows += 1
@@ -338,14 +341,17 @@ class A2PGenerator(LearnedGenerator):
         speaker = np.repeat(self.speaker, len(keep))
         memory = memory_graph(conditions, keep=keep, speaker=speaker)
         if not per_take:  # one row per take, conditional rows first (the order ``guided`` batches)
-            memory = {k: _repeat_rows(v, takes, 1 if "keys" in k or "values" in k else 0) for k, v in memory.items()}
+            memory = {k: _repeat_rows(v, takes, _batch_axis(k)) for k, v in memory.items()}
+        passes = len(np.unique(np.atleast_1d(guidance))) if distilled and not self.consistency else 1
+        if passes > 1:  # a student at one scale a channel: the rows once a scale (``scaled_by_input``)
+            memory = {k: np.concatenate([v] * passes, axis=_batch_axis(k)) for k, v in memory.items()}
         known = np.zeros((takes, window, dim), np.float32)
         known_mask = np.zeros((takes, window, 1), np.float32)
         if context is not None:
             known[:, : context.shape[1]] = context[..., part]
             known_mask[:, : context.shape[1]] = 1.0
 
-        def x0(x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        def x0(x: np.ndarray, steps: np.ndarray, scale: np.ndarray | None = None) -> np.ndarray:
             times = len(x) // takes
             feed = {
                 "noisy": x,
@@ -355,13 +361,13 @@ class A2PGenerator(LearnedGenerator):
                 **memory,
             }
             if distilled:
-                feed["guidance"] = np.full(len(x), guidance, np.float32)
+                feed["guidance"] = np.full(len(x), guidance, np.float32) if scale is None else scale
             return step_graph(feed)["x0"]
 
         noise = noise_like(rngs, (window, dim))
         if self.consistency:
             return consistency_sample(x0, noise, steps, self.alpha_bar, self.skip, rngs, known, known_mask)
-        x0_fn = guided(x0, guidance) if cfg else x0
+        x0_fn = guided(x0, guidance) if cfg else scaled_by_input(x0, guidance) if distilled else x0
         if self.dpm_times:
             return dpm_solver_sample(x0_fn, noise, self.dpm_times[part.start], self.alpha_bar, known, known_mask)
         return ddim_sample(x0_fn, noise, steps, self.alpha_bar, known, known_mask, self.options.eta, rngs)
@@ -373,8 +379,8 @@ class A2PGenerator(LearnedGenerator):
             "sampler": self.options.sampler,
             "steps": self.steps,
             "face_steps": self.face_steps,
-            "guidance": {"face": self.options.guidance_face, "body": self.guidance_body, "head": self.guidance_head},
-            "body_guidance_on": self._body_guidance_on(),
+            "guidance": self.guidance.report(),
+            "body_guidance_on": self.guidance.body_on,
             "top_p": self.options.top_p,
             "guide_temperature": self.options.guide_temperature,
             "window": self.plan.window,
@@ -382,26 +388,10 @@ class A2PGenerator(LearnedGenerator):
             "windows": self.windows,
         }
 
-    def _head_guidance(self) -> float:
-        """The head and neck's guidance: students learned one scale for the whole body."""
-        if self.options.sampler == "distilled":
-            return self.guidance_body
-        if self.options.guidance_head:
-            return self.options.guidance_head
-        return self.guidance_body if self.options.guidance_body else DDIM_GUIDANCE_HEAD
 
-    def _body_guidance_per_channel(self) -> float | np.ndarray:
-        if self.guidance_head == self.guidance_body:
-            return self.guidance_body
-        scale = np.full(BODY.stop - BODY.start, self.guidance_body, np.float32)
-        scale[HEAD.start - BODY.start : HEAD.stop - BODY.start] = self.guidance_head
-        return scale
-
-    def _body_guidance_on(self) -> str:
-        """What the body's guidance amplifies: the option's, but students learned theirs."""
-        if self.options.sampler != "distilled":
-            return self.options.guidance_body_on
-        return "all" if self.consistency else "audio"
+def _batch_axis(name: str) -> int:
+    """The batch axis of a memory graph's output: the attention caches hold their layers first."""
+    return 1 if "keys" in name or "values" in name else 0
 
 
 def _repeat_rows(array: np.ndarray, times: int, axis: int) -> np.ndarray:

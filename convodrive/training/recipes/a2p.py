@@ -234,7 +234,7 @@ class A2PRecipe(StagedRecipe):
             f"cosine schedule of {config.diffusion_steps} steps, x0 prediction; windows up to {config.window} frames, "
             f"continued from up to {config.context} known frames. Speakers: {speakers}.\n\n"
             "Use: `convodrive drive AUDIO --generator a2p -G model=THIS_FOLDER` (options: sampler, steps, "
-            "face_steps, eta, guidance_face, guidance_body, guidance_head, top_p, speaker, mode, blend). The teachers run by "
+            "face_steps, eta, guidance_face, guidance_gaze, guidance_lids, guidance_body, guidance_head, top_p, speaker, mode, blend). The teachers run by "
             "default (DDIM), or by DPM-Solver++(2M) in 4 body and 8 face steps (`sampler=dpm`); with "
             f"`sampler=distilled` the students do ({students}), and the distilled face takes "
             f"{face_steps} unless `face_steps` says otherwise."
