@@ -122,11 +122,17 @@ ScaledX0Fn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 """x0 of a model that takes its guidance scale as an input: (x, steps, scale a row)."""
 
 
+def distinct_scales(scale: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct values of one scale or one a channel, smallest first, and each channel's index among them."""
+    levels, level_of_channel = np.unique(np.atleast_1d(np.asarray(scale, np.float32)), return_inverse=True)
+    return levels, level_of_channel
+
+
 def scaled_by_input(x0_fn: ScaledX0Fn, scale: float | np.ndarray) -> X0Fn:
     """x0 at one guidance scale a channel (or one for all) from a model that learned the scale as an
-    input: the rows go once for each distinct scale in one call (copy k at the k-th smallest), and
-    each channel is read from its own scale's copy."""
-    levels, level_of_channel = np.unique(np.atleast_1d(np.asarray(scale, np.float32)), return_inverse=True)
+    input: the rows go once for each of ``distinct_scales`` in one call (copy k at the k-th
+    smallest), and each channel is read from its own scale's copy."""
+    levels, level_of_channel = distinct_scales(scale)
 
     def fn(x: np.ndarray, steps: np.ndarray) -> np.ndarray:
         rows = len(x)

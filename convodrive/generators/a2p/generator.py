@@ -48,6 +48,7 @@ from convodrive.neural.diffusion import (
     cosine_schedule,
     ddim_sample,
     ddim_timesteps,
+    distinct_scales,
     dpm_solver_sample,
     guided,
     log_snr_timesteps,
@@ -283,7 +284,7 @@ class A2PGenerator(LearnedGenerator):
             FACE,
             context,
             rngs,
-            self.guidance.face_scales(),
+            self.guidance.face_scales,
             self.face_steps,
             np.zeros(2, np.float32),
         )
@@ -304,9 +305,9 @@ class A2PGenerator(LearnedGenerator):
             BODY,
             context,
             rngs,
-            self.guidance.body_scales(),
+            self.guidance.body_scales,
             self.steps,
-            self.guidance.body_unconditional(),
+            self.guidance.body_unconditional,
         )
         state.index += 1
         self.windows += 1
@@ -342,7 +343,7 @@ class A2PGenerator(LearnedGenerator):
         memory = memory_graph(conditions, keep=keep, speaker=speaker)
         if not per_take:  # one row per take, conditional rows first (the order ``guided`` batches)
             memory = {k: _repeat_rows(v, takes, _batch_axis(k)) for k, v in memory.items()}
-        passes = len(np.unique(np.atleast_1d(guidance))) if distilled and not self.consistency else 1
+        passes = len(distinct_scales(guidance)[0]) if distilled and not self.consistency else 1
         if passes > 1:  # a student at one scale a channel: the rows once a scale (``scaled_by_input``)
             memory = {k: np.concatenate([v] * passes, axis=_batch_axis(k)) for k, v in memory.items()}
         known = np.zeros((takes, window, dim), np.float32)

@@ -9,6 +9,7 @@ students learned no scale at all."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any, Protocol
 
 import numpy as np
@@ -74,7 +75,8 @@ class GuidanceOptions(Protocol):
 
 @dataclasses.dataclass(frozen=True)
 class Guidance:
-    """One generator's scales, each resolved from its option and the sampler's defaults."""
+    """One generator's scales, each resolved from its option and the sampler's defaults (the
+    per-channel arrays the sampler takes are built once, on first use, not once a window)."""
 
     face: float
     gaze: float
@@ -102,14 +104,17 @@ class Guidance:
         gaze, lids = options.guidance_gaze or GUIDANCE_EYES, options.guidance_lids or GUIDANCE_EYES
         return cls(face, gaze, lids, body, head, options.guidance_body_on)
 
+    @functools.cached_property
     def face_scales(self) -> float | np.ndarray:
         """The face's scale as the sampler takes it: one, or one a face channel where the eyes' differ."""
         return _per_channel(FACE, self.face, ((GAZE, self.gaze), (LIDS, self.lids)))
 
+    @functools.cached_property
     def body_scales(self) -> float | np.ndarray:
         """The body's scale: one, or one a body channel where the head's differs."""
         return _per_channel(BODY, self.body, ((np.arange(HEAD.start, HEAD.stop), self.head),))
 
+    @functools.cached_property
     def body_unconditional(self) -> np.ndarray:
         """(2,): which of the body's conditions (audio, guide poses) its unconditional pass keeps."""
         return np.array([0.0, float(self.body_on == "audio")], np.float32)
